@@ -250,7 +250,7 @@ def main(args: Args) -> None:
 
     # env setup
     envs = make_env(args.env_id, args.num_envs, args.seed)
-    num_actions = envs.action_space.n
+    num_actions = int(envs.action_space.n)
     agent = Agent(num_actions).to(device)
     optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5)
 

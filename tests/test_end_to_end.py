@@ -1,0 +1,152 @@
+"""Both scripts, for a few iterations on real envpool Atari games on the CPU, read back from
+their TensorBoard event files."""
+
+import glob
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+import p3o_atari_envpool as p3o
+import ppo_atari_envpool as ppo
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SCRIPTS = {"ppo": ppo, "p3o": p3o}
+GAMES = ["Breakout-v5", "Qbert-v5"]
+# 3 iterations of 4 envs x 128 steps: long enough for random play to finish a few games
+TINY = ["--num-envs", "4", "--num-steps", "128", "--num-minibatches", "2", "--update-epochs", "2"]
+TINY += ["--total-timesteps", "1536", "--learning-rate", "2.5e-4", "--seed", "3"]
+ITERATIONS = 3
+
+COMMON_TAGS = [
+    "charts/episodic_return",
+    "charts/episodic_length",
+    "charts/learning_rate",
+    "charts/SPS",
+    "losses/value_loss",
+    "losses/policy_loss",
+    "losses/entropy",
+    "losses/old_approx_kl",
+    "losses/approx_kl",
+    "losses/clipfrac",
+    "losses/explained_variance",
+]
+P3O_TAGS = ["p3o/beta_mean", "p3o/beta_std", "p3o/state_importance_mean"]
+LOSS_TAGS = [t for t in COMMON_TAGS if t.startswith("losses/")] + ["charts/episodic_return"]
+
+
+def train(algo, env_id, workdir, *extra):
+    os.makedirs(workdir, exist_ok=True)
+    proc = subprocess.run(
+        [sys.executable, os.path.join(ROOT, f"{algo}_atari_envpool.py"), "--env-id", env_id, *TINY, *extra],
+        cwd=workdir,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    run_dirs = glob.glob(os.path.join(workdir, "runs", f"{env_id}__{algo}_atari_envpool__3__*"))
+    return proc, run_dirs
+
+
+def load_events(run_dir):
+    acc = EventAccumulator(run_dir, size_guidance={"scalars": 0, "histograms": 0, "tensors": 0})
+    acc.Reload()
+    return acc
+
+
+def scalars(acc, tag):
+    return [(e.step, e.value) for e in acc.Scalars(tag)]
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    out = {}
+    for algo in SCRIPTS:
+        for env_id in GAMES:
+            workdir = tmp_path_factory.mktemp(f"{algo}-{env_id}")
+            extra = ["--save-model"] if env_id == "Breakout-v5" else []
+            proc, run_dirs = train(algo, env_id, str(workdir), *extra)
+            out[algo, env_id] = proc, run_dirs
+    return out
+
+
+@pytest.mark.parametrize("env_id", GAMES)
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_run_exits_zero_and_logs_every_tag_with_finite_values(runs, algo, env_id):
+    proc, run_dirs = runs[algo, env_id]
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert len(run_dirs) == 1
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("iteration ")]
+    assert len(lines) == ITERATIONS
+    assert lines[-1].startswith(f"iteration {ITERATIONS}/{ITERATIONS} global_step={ITERATIONS * 512} SPS=")
+    assert "last_return=" in lines[-1]
+
+    acc = load_events(run_dirs[0])
+    tags = COMMON_TAGS + (P3O_TAGS if algo == "p3o" else [])
+    for tag in tags:
+        points = scalars(acc, tag)
+        assert points, f"{tag} is missing"
+        assert all(math.isfinite(v) for _, v in points), f"{tag} has non-finite values: {points}"
+        if not tag.startswith("charts/episodic"):
+            assert [s for s, _ in points] == [512 * i for i in range(1, ITERATIONS + 1)], tag
+    if algo == "p3o":
+        hist = acc.Histograms("p3o/beta")
+        assert len(hist) == ITERATIONS
+        for h in hist:
+            assert 0.0 <= h.histogram_value.min and h.histogram_value.max <= 1.0
+            assert h.histogram_value.num == 128 * 4
+        for _, beta_mean in scalars(acc, "p3o/beta_mean"):
+            assert 0.0 <= beta_mean <= 1.0
+    else:
+        assert not any(t.startswith("p3o/") for t in acc.Tags()["scalars"])
+
+    # full games: Breakout and Qbert both have several lives, so a game outlasts a life
+    lengths = [v for _, v in scalars(acc, "charts/episodic_length")]
+    returns = [v for _, v in scalars(acc, "charts/episodic_return")]
+    assert min(lengths) > 50 and all(r >= 0 for r in returns)
+    # annealed learning rate: 2.5e-4 * (1, 2/3, 1/3)
+    lrs = [v for _, v in scalars(acc, "charts/learning_rate")]
+    np.testing.assert_allclose(lrs, [2.5e-4, 2.5e-4 * 2 / 3, 2.5e-4 / 3], rtol=1e-6)
+    # hyperparameters as text, as CleanRL does
+    text = acc.Tensors("hyperparameters/text_summary")[0].tensor_proto.string_val[0].decode()
+    assert f"|env_id|{env_id}|" in text and "|num_envs|4|" in text
+
+
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_saved_model_loads_and_acts(runs, algo):
+    proc, run_dirs = runs[algo, "Breakout-v5"]
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    path = os.path.join(run_dirs[0], f"{algo}_atari_envpool.cleanrl_model")
+    assert os.path.isfile(path) and not os.path.exists(path + ".tmp")
+    saved = torch.load(path, map_location="cpu", weights_only=True)
+    assert saved["env_id"] == "Breakout-v5" and saved["num_actions"] == 4
+    module = SCRIPTS[algo]
+    agent = module.Agent(saved["num_actions"])
+    agent.load_state_dict(saved["model_state_dict"])
+    envs = module.make_env("Breakout-v5", 2, seed=11)
+    obs, _ = envs.reset()
+    with torch.inference_mode():
+        action = agent.get_action_and_value(torch.as_tensor(obs))[0]
+    assert action.shape == (2,) and ((0 <= action) & (action < 4)).all()
+    envs.step(action.numpy().astype(np.int32))
+    envs.close()
+    # the trained weights differ from a fresh agent's: the file holds the trained agent
+    torch.manual_seed(3)
+    fresh = module.Agent(4)
+    assert not torch.equal(fresh.actor.weight, agent.actor.weight)
+
+
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_same_seed_gives_identical_losses(runs, algo, tmp_path):
+    _, first_dirs = runs[algo, "Breakout-v5"]
+    proc, second_dirs = train(algo, "Breakout-v5", str(tmp_path), "--torch-deterministic")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    first, second = load_events(first_dirs[0]), load_events(second_dirs[0])
+    tags = LOSS_TAGS + (P3O_TAGS if algo == "p3o" else [])
+    for tag in tags:
+        assert scalars(first, tag) == scalars(second, tag), tag
