@@ -16,7 +16,10 @@ CASES = [
     ({"env_id": "Brekout-v5"}, "Did you mean Breakout-v5"),
     ({"env_id": "CartPole-v1"}, "is an envpool environment but not an Atari game"),
     ({"num_envs": 4, "num_steps": 10, "num_minibatches": 3, "total_timesteps": 400}, "does not divide into"),
-    ({"num_envs": 4, "num_steps": 32, "num_minibatches": 2, "total_timesteps": 100}, "smaller than one batch"),
+    (
+        {"num_envs": 4, "num_steps": 32, "num_minibatches": 2, "total_timesteps": 100},
+        "smaller than one batch",
+    ),
     ({"num_envs": 0}, "--num-envs must be positive"),
     ({"num_steps": -1}, "--num-steps must be positive"),
     ({"num_minibatches": 0}, "--num-minibatches must be positive"),

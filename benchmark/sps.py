@@ -1,0 +1,184 @@
+"""Steps per second of both training scripts against envpool's own ceiling, in one command.
+
+For each script: a whole iteration, the rollout alone and the update alone (from the timings the
+scripts' `main` returns), plus raw envpool with random actions at the same `num_envs` (the rollout's
+ceiling). Each measurement runs in a fresh child process, so peak host memory (RSS) and peak GPU
+memory are that measurement's own. The first `--warmup` iterations are dropped; medians of the rest.
+
+    uv run python benchmark/sps.py                 # small CPU settings: 8 envs x 128 steps, 4 x 4
+    uv run python benchmark/sps.py --thesis        # thesis settings: 256 x 256, 8 epochs x 8 minibatches
+"""
+
+import contextlib
+import importlib.util
+import json
+import multiprocessing as mp
+import os
+import platform
+import resource
+import statistics
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SCRIPTS = {"ppo": "ppo_atari_envpool.py", "p3o": "p3o_atari_envpool.py"}
+
+
+@dataclass
+class Args:
+    env_id: str = "Breakout-v5"
+    """the envpool Atari game"""
+    num_envs: int = 8
+    """parallel environments"""
+    num_steps: int = 128
+    """steps per environment per rollout"""
+    num_minibatches: int = 4
+    """minibatches per epoch"""
+    update_epochs: int = 4
+    """epochs per update"""
+    thesis: bool = False
+    """use the thesis's settings instead: 256 envs x 256 steps, 8 epochs x 8 minibatches"""
+    iterations: int = 5
+    """measured iterations per script (the median is reported)"""
+    warmup: int = 1
+    """iterations run first and not counted"""
+    cuda: bool = True
+    """train on the GPU when there is one"""
+    scripts: tuple[str, ...] = ("ppo", "p3o")
+    """which scripts to measure"""
+    out: str = "benchmark/sps.json"
+    """where the JSON results go"""
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux reports KiB
+
+
+def _load(name: str):
+    spec = importlib.util.spec_from_file_location(f"{name}_atari_envpool", os.path.join(ROOT, SCRIPTS[name]))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _measure_script(name: str, settings: dict, warmup: int, iterations: int, cuda: bool, queue) -> None:
+    import torch
+
+    module = _load(name)
+    batch = settings["num_envs"] * settings["num_steps"]
+    args = module.Args(**settings, total_timesteps=batch * (warmup + iterations), cuda=cuda, seed=1)
+    with tempfile.TemporaryDirectory() as tmp, open(os.devnull, "w") as devnull:
+        os.chdir(tmp)  # the run's event file goes to a throw-away folder
+        with contextlib.redirect_stdout(devnull):
+            timings = module.main(args)
+    result = {key: statistics.median(batch / s for s in values[warmup:]) for key, values in timings.items()}
+    result = {key.replace("_s", "_sps"): value for key, value in result.items()}
+    result["peak_rss_mb"] = _peak_rss_mb()
+    result["peak_gpu_mb"] = torch.cuda.max_memory_allocated() / 2**20 if torch.cuda.is_available() else None
+    queue.put(result)
+
+
+def _measure_raw_env(settings: dict, warmup: int, iterations: int, queue) -> None:
+    import numpy as np
+
+    module = _load("ppo")
+    envs = module.make_env(settings["env_id"], settings["num_envs"], seed=1)
+    n, steps = settings["num_envs"], settings["num_steps"]
+    actions = np.random.default_rng(0).integers(0, envs.action_space.n, size=(steps, n)).astype(np.int32)
+    envs.reset()
+    rates = []
+    for _ in range(warmup + iterations):
+        start = time.perf_counter()
+        for t in range(steps):
+            envs.step(actions[t])
+        rates.append(n * steps / (time.perf_counter() - start))
+    envs.close()
+    queue.put({"rollout_sps": statistics.median(rates[warmup:]), "peak_rss_mb": _peak_rss_mb()})
+
+
+def _in_child(target, *args):
+    ctx = mp.get_context("spawn")
+    queue = ctx.Queue()
+    proc = ctx.Process(target=target, args=(*args, queue))
+    proc.start()
+    result = queue.get()
+    proc.join()
+    return result
+
+
+def main(args: Args) -> dict:
+    if args.thesis:
+        args.num_envs, args.num_steps, args.num_minibatches, args.update_epochs = 256, 256, 8, 8
+    if args.iterations < 1 or args.warmup < 0:
+        sys.exit("error: --iterations must be at least 1 and --warmup at least 0.")
+    unknown = set(args.scripts) - set(SCRIPTS)
+    if unknown:
+        sys.exit(f"error: unknown script(s) {sorted(unknown)}; choose from {sorted(SCRIPTS)}.")
+    settings = {
+        "env_id": args.env_id,
+        "num_envs": args.num_envs,
+        "num_steps": args.num_steps,
+        "num_minibatches": args.num_minibatches,
+        "update_epochs": args.update_epochs,
+    }
+    _load("ppo").check_args(_load("ppo").Args(**settings, total_timesteps=args.num_envs * args.num_steps))
+
+    import torch
+
+    device = (
+        torch.cuda.get_device_name(0) if args.cuda and torch.cuda.is_available() else platform.processor()
+    )
+    print(
+        f"{args.env_id}: {args.num_envs} envs x {args.num_steps} steps, {args.update_epochs} epochs x "
+        f"{args.num_minibatches} minibatches; {args.warmup} warm-up + {args.iterations} measured iterations; "
+        f"{device or 'CPU'}, {os.cpu_count()} CPU cores, torch {torch.__version__}",
+        flush=True,
+    )
+    results = {"raw_env": _in_child(_measure_raw_env, settings, args.warmup, args.iterations)}
+    for name in args.scripts:
+        results[name] = _in_child(_measure_script, name, settings, args.warmup, args.iterations, args.cuda)
+
+    raw = results["raw_env"]["rollout_sps"]
+    print("\n| what | iteration steps/s | rollout steps/s | update steps/s | peak RSS MB | peak GPU MB |")
+    print("|---|---|---|---|---|---|")
+    print(f"| raw envpool, random actions | | {raw:,.0f} | | {results['raw_env']['peak_rss_mb']:,.0f} | |")
+    for name in args.scripts:
+        r = results[name]
+        gpu = f"{r['peak_gpu_mb']:,.0f}" if r["peak_gpu_mb"] is not None else "-"
+        print(
+            f"| {SCRIPTS[name]} | {r['iteration_sps']:,.0f} | {r['rollout_sps']:,.0f} | "
+            f"{r['update_sps']:,.0f} | {r['peak_rss_mb']:,.0f} | {gpu} |"
+        )
+    ratios = {}
+    for name in args.scripts:
+        ratios[f"{name}_rollout/raw_env"] = results[name]["rollout_sps"] / raw
+        ratios[f"{name}_iteration/raw_env"] = results[name]["iteration_sps"] / raw
+    if {"ppo", "p3o"} <= set(args.scripts):
+        ratios["p3o/ppo_iteration"] = results["p3o"]["iteration_sps"] / results["ppo"]["iteration_sps"]
+        ratios["p3o/ppo_rollout"] = results["p3o"]["rollout_sps"] / results["ppo"]["rollout_sps"]
+        ratios["p3o/ppo_update"] = results["p3o"]["update_sps"] / results["ppo"]["update_sps"]
+    print()
+    for key, value in ratios.items():
+        print(f"{key}: {value:.3f}")
+
+    report = {
+        "settings": asdict(args),
+        "device": device,
+        "torch": torch.__version__,
+        "results": results,
+        "ratios": ratios,
+        "unix_time": int(time.time()),
+    }
+    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+    with open(args.out, "w") as f:
+        json.dump(report, f, indent=2)
+    print(f"\nwrote {args.out}")
+    return report
+
+
+if __name__ == "__main__":
+    import tyro
+
+    main(tyro.cli(Args))
