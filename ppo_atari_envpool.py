@@ -2,8 +2,10 @@
 # (gymnasium-style `reset() -> (obs, info)` and 5-tuple `step`).
 # Docs: README.md. The P3O script (p3o_atari_envpool.py) is this file plus P3O: diff the two.
 import difflib
+import json
 import os
 import random
+import signal
 import sys
 import time
 from dataclasses import dataclass
@@ -13,6 +15,8 @@ import torch
 import torch.nn as nn
 import torch.optim as optim
 from torch.distributions.categorical import Categorical
+
+ALGORITHM = "ppo"  # written into model files and checkpoints, checked when they are loaded
 
 
 @dataclass
@@ -27,6 +31,16 @@ class Args:
     """if toggled, cuda is used when available (the script falls back to the CPU without a GPU)"""
     save_model: bool = False
     """whether to save the trained agent to `runs/{run_name}/{exp_name}.cleanrl_model`"""
+    run_name: str | None = None
+    """the run folder under `runs/` (default: `{env_id}__{exp_name}__{seed}__{unix_time}`)"""
+    checkpoint_every: int = 10
+    """write `runs/{run_name}/checkpoint.pt` every this many iterations (0: only at the end and on a signal)"""
+    resume: str | None = None
+    """continue the run of this checkpoint (a `checkpoint.pt` or its run folder)"""
+    eval_episodes: int = 10
+    """after training, play this many full games (each its own environment and seed) and log their returns"""
+    eval_greedy: bool = False
+    """evaluate with the most probable action instead of sampling from the policy"""
 
     # Algorithm specific arguments: defaults are the thesis's table 5.2, the same for PPO and P3O
     env_id: str = "Breakout-v5"
@@ -76,9 +90,7 @@ class Args:
 def atari_env_ids() -> list[str]:
     import envpool
 
-    return [
-        i for i in envpool.list_all_envs() if envpool.registration.registry.specs[i][0] == "envpool.atari"
-    ]
+    return [i for i in envpool.list_all_envs() if envpool.registration.registry.specs[i][0] == "envpool.atari"]
 
 
 def check_args(args: Args) -> None:
@@ -91,6 +103,9 @@ def check_args(args: Args) -> None:
     for name in ("gamma", "gae_lambda"):
         if not 0 <= getattr(args, name) <= 1:
             sys.exit(f"error: --{name.replace('_', '-')} must lie in [0, 1], got {getattr(args, name)}.")
+    for name in ("checkpoint_every", "eval_episodes"):
+        if getattr(args, name) < 0:
+            sys.exit(f"error: --{name.replace('_', '-')} must be 0 or more, got {getattr(args, name)}.")
     batch_size = args.num_envs * args.num_steps
     if batch_size % args.num_minibatches != 0:
         sys.exit(
@@ -165,6 +180,7 @@ def save_agent(path: str, agent: Agent, args: Args, num_actions: int) -> None:
     """Write the agent with what is needed to rebuild it, atomically (temporary file, then rename)."""
     checkpoint = {
         "format": "p3o-atari-agent/1",
+        "algorithm": ALGORITHM,
         "exp_name": args.exp_name,
         "env_id": args.env_id,
         "num_actions": num_actions,
@@ -174,6 +190,111 @@ def save_agent(path: str, agent: Agent, args: Args, num_actions: int) -> None:
     tmp = f"{path}.tmp"
     torch.save(checkpoint, tmp)
     os.replace(tmp, path)
+
+
+CHECKPOINT_FORMAT = "p3o-atari-checkpoint/1"
+# arguments that may differ between a run and its resumption; all others define the experiment
+RESUMABLE_ARGS = {
+    "cuda",
+    "save_model",
+    "checkpoint_every",
+    "resume",
+    "eval_episodes",
+    "eval_greedy",
+    "torch_deterministic",
+}
+
+
+def rng_state() -> dict:
+    """The python, numpy and torch random states, in types that `torch.load(weights_only=True)` reads."""
+    kind, keys, pos, has_gauss, gauss = np.random.get_state()
+    state = {
+        "python": random.getstate(),
+        "numpy": (kind, torch.from_numpy(keys.astype(np.int64)), pos, has_gauss, gauss),
+        "torch": torch.get_rng_state(),
+    }
+    if torch.cuda.is_available():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def set_rng_state(state: dict) -> None:
+    random.setstate((state["python"][0], tuple(state["python"][1]), state["python"][2]))
+    kind, keys, pos, has_gauss, gauss = state["numpy"]
+    np.random.set_state((kind, keys.numpy().astype(np.uint32), pos, has_gauss, gauss))
+    torch.set_rng_state(state["torch"])
+    if "cuda" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])
+
+
+def save_checkpoint(path, agent, optimizer, args, iteration, rng, finished=False) -> None:
+    """Everything needed to continue after `iteration`, written atomically (temporary file, then rename)."""
+    checkpoint = {
+        "format": CHECKPOINT_FORMAT,
+        "algorithm": ALGORITHM,
+        "args": vars(args),
+        "iteration": iteration,
+        "global_step": iteration * args.batch_size,
+        "finished": finished,
+        "model_state_dict": agent.state_dict(),
+        "optimizer_state_dict": optimizer.state_dict(),
+        "rng_state": rng,
+    }
+    tmp = f"{path}.tmp"
+    torch.save(checkpoint, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: str) -> tuple[str, dict]:
+    """Read a checkpoint (or the one in a run folder), refusing anything else by name."""
+    if os.path.isdir(path):
+        path = os.path.join(path, "checkpoint.pt")
+    if not os.path.isfile(path):
+        sys.exit(f"error: --resume {path}: there is no checkpoint there.")
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:
+        sys.exit(f"error: --resume {path} is not a readable checkpoint; it may be truncated or corrupt ({e!r:.150}).")
+    if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
+        sys.exit(f"error: --resume {path} is not a checkpoint written by these scripts.")
+    if checkpoint["algorithm"] != ALGORITHM:
+        sys.exit(
+            f"error: --resume {path} is a {checkpoint['algorithm']} checkpoint; "
+            f"resume it with {checkpoint['algorithm']}_atari_envpool.py."
+        )
+    return path, checkpoint
+
+
+def check_resume_args(args: Args, saved: dict, path: str) -> None:
+    """Refuse to resume with arguments that would change the experiment."""
+    computed = {"batch_size", "minibatch_size", "num_iterations", "run_name"}
+    differ = [
+        f"--{name.replace('_', '-')} {saved.get(name)!r} (now {value!r})"
+        for name, value in vars(args).items()
+        if name not in RESUMABLE_ARGS | computed and saved.get(name) != value
+    ]
+    if differ:
+        sys.exit(f"error: --resume {path} was started with {', '.join(differ)}; resume it with the same arguments.")
+
+
+def evaluate(agent, env_id, episodes, seed, greedy, device) -> tuple[list[float], list[int]]:
+    """Play `episodes` full games (all lives), game i in its own environment seeded `seed + i`, with
+    actions sampled from the policy (or its most probable action when `greedy`). Unclipped returns."""
+    envs = make_env(env_id, episodes, seed)
+    obs_np, _ = envs.reset()
+    returns = np.zeros(episodes)
+    lengths = np.zeros(episodes, dtype=np.int64)
+    playing = np.ones(episodes, dtype=bool)
+    with torch.inference_mode():
+        while playing.any():
+            logits = agent.actor(agent.hidden(frames_to_device(obs_np, device, None)))
+            action = logits.argmax(-1) if greedy else Categorical(logits=logits, validate_args=False).sample()
+            obs_np, _, terminations, truncations, info = envs.step(action.cpu().numpy())
+            returns += info["reward"] * playing
+            lengths += playing
+            playing &= ~np.logical_or(info["terminated"].astype(bool), truncations)
+    envs.close()
+    return returns.tolist(), lengths.tolist()
 
 
 def gae(rewards, values, dones, next_value, next_done, gamma, gae_lambda):
@@ -240,15 +361,31 @@ def main(args: Args) -> dict[str, list[float]]:
     args.batch_size = int(args.num_envs * args.num_steps)
     args.minibatch_size = int(args.batch_size // args.num_minibatches)
     args.num_iterations = args.total_timesteps // args.batch_size
-    run_name = f"{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}"
+    checkpoint = None
+    if args.resume is not None:
+        checkpoint_path, checkpoint = load_checkpoint(args.resume)
+        check_resume_args(args, checkpoint["args"], checkpoint_path)
+        run_dir = os.path.dirname(checkpoint_path)
+        if checkpoint["finished"]:
+            print(f"{run_dir} already finished ({checkpoint['global_step']} steps); nothing to do.")
+            return {"rollout_s": [], "update_s": [], "iteration_s": []}
+    else:
+        run_name = args.run_name or f"{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}"
+        run_dir = f"runs/{run_name}"
+        checkpoint_path = os.path.join(run_dir, "checkpoint.pt")
+        if os.path.exists(checkpoint_path):
+            sys.exit(f"error: {run_dir} already holds a run; continue it with --resume {run_dir}.")
+    start_iteration = checkpoint["iteration"] if checkpoint else 0
 
     from torch.utils.tensorboard import SummaryWriter
 
-    writer = SummaryWriter(f"runs/{run_name}")
-    writer.add_text(
-        "hyperparameters",
-        "|param|value|\n|-|-|\n" + "\n".join([f"|{key}|{value}|" for key, value in vars(args).items()]),
-    )
+    # on resume, points the killed run logged after its checkpoint are purged, so none is duplicated
+    writer = SummaryWriter(run_dir, purge_step=start_iteration * args.batch_size + 1 if checkpoint else None)
+    if checkpoint is None:
+        writer.add_text(
+            "hyperparameters",
+            "|param|value|\n|-|-|\n" + "\n".join([f"|{key}|{value}|" for key, value in vars(args).items()]),
+        )
 
     # TRY NOT TO MODIFY: seeding
     random.seed(args.seed)
@@ -260,12 +397,24 @@ def main(args: Args) -> dict[str, list[float]]:
     if device.type == "cuda":
         torch.set_float32_matmul_precision("high")  # TF32 matmuls (cuDNN convolutions use TF32 by default)
 
-    # env setup
-    envs = make_env(args.env_id, args.num_envs, args.seed)
+    # env setup; envpool cannot save game states, so a resumed run starts fresh games (other seeds)
+    envs = make_env(args.env_id, args.num_envs, args.seed + start_iteration * args.num_envs)
     num_actions = int(envs.action_space.n)
     # channels_last: the same network, with faster convolutions on the CPU and the GPU (benchmark/README.md)
     agent = Agent(num_actions).to(device, memory_format=torch.channels_last)
     optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=device.type == "cuda")
+    if checkpoint:
+        agent.load_state_dict(checkpoint["model_state_dict"])
+        optimizer.load_state_dict(checkpoint["optimizer_state_dict"])
+        set_rng_state(checkpoint["rng_state"])
+        print(
+            f"resuming {run_dir} after iteration {start_iteration} ({checkpoint['global_step']} steps)",
+            flush=True,
+        )
+    # SIGTERM (what Slurm sends before preemption) or SIGINT: checkpoint, then stop
+    stop_signal = []
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda signum, frame: stop_signal.append(signum))
 
     # ALGO Logic: Storage setup. Frames stay uint8 (a quarter of float32's memory).
     T, N = args.num_steps, args.num_envs
@@ -288,7 +437,7 @@ def main(args: Args) -> dict[str, list[float]]:
     last_return = float("nan")
 
     # TRY NOT TO MODIFY: start the game
-    global_step = 0
+    global_step = start_global_step = start_iteration * args.batch_size
     start_time = time.time()
     next_obs_np, _ = envs.reset()
     next_obs = frames_to_device(next_obs_np, device, staging)
@@ -296,7 +445,8 @@ def main(args: Args) -> dict[str, list[float]]:
     timings = {"rollout_s": [], "update_s": [], "iteration_s": []}
 
     try:
-        for iteration in range(1, args.num_iterations + 1):
+        for iteration in range(start_iteration + 1, args.num_iterations + 1):
+            rng = rng_state()  # the state a checkpoint of the previous iteration holds
             # Annealing the rate if instructed to do so.
             if args.anneal_lr:
                 frac = 1.0 - (iteration - 1.0) / args.num_iterations
@@ -306,6 +456,8 @@ def main(args: Args) -> dict[str, list[float]]:
             iteration_start = time.perf_counter()
             with torch.inference_mode():
                 for step in range(0, T):
+                    if stop_signal:
+                        break
                     global_step += N
                     obs[step] = next_obs
                     dones_np[step] = next_done_np
@@ -327,15 +479,21 @@ def main(args: Args) -> dict[str, list[float]]:
                     episode_lengths += 1
                     game_over = np.logical_or(info["terminated"].astype(bool), truncations)
                     if game_over.any():
-                        for ret, length in zip(
-                            episode_returns[game_over], episode_lengths[game_over], strict=True
-                        ):
+                        for ret, length in zip(episode_returns[game_over], episode_lengths[game_over], strict=True):
                             writer.add_scalar("charts/episodic_return", ret, global_step)
                             writer.add_scalar("charts/episodic_length", length, global_step)
                         last_return = float(episode_returns[game_over][-1])
                         episode_returns[game_over] = 0
                         episode_lengths[game_over] = 0
 
+            if stop_signal:  # the unfinished rollout is dropped; the checkpoint holds the last iteration
+                save_checkpoint(checkpoint_path, agent, optimizer, args, iteration - 1, rng)
+                print(
+                    f"stopped by signal {stop_signal[0]}: checkpoint after iteration {iteration - 1} in "
+                    f"{checkpoint_path}; continue with --resume {run_dir}",
+                    flush=True,
+                )
+                sys.exit(128 + stop_signal[0])
             rollout_end = time.perf_counter()
             rewards = torch.as_tensor(rewards_np, device=device)
             dones = torch.as_tensor(dones_np, device=device)
@@ -370,9 +528,7 @@ def main(args: Args) -> dict[str, list[float]]:
                     mb_inds = b_inds[start:end]
                     mb_valid = b_valid[mb_inds]
 
-                    _, newlogprob, entropy, newvalue = agent.get_action_and_value(
-                        b_obs[mb_inds], b_actions[mb_inds]
-                    )
+                    _, newlogprob, entropy, newvalue = agent.get_action_and_value(b_obs[mb_inds], b_actions[mb_inds])
                     logratio = newlogprob - b_logprobs[mb_inds]
                     ratio = logratio.exp()
 
@@ -380,9 +536,7 @@ def main(args: Args) -> dict[str, list[float]]:
                         # calculate approx_kl http://joschu.net/blog/kl-approx.html
                         old_approx_kl = masked_mean(-logratio, mb_valid)
                         approx_kl = masked_mean((ratio - 1) - logratio, mb_valid)
-                        clipfracs.append(
-                            masked_mean(((ratio - 1.0).abs() > args.clip_coef).float(), mb_valid)
-                        )
+                        clipfracs.append(masked_mean(((ratio - 1.0).abs() > args.clip_coef).float(), mb_valid))
 
                     mb_advantages = b_advantages[mb_inds]
                     if args.norm_adv:
@@ -430,7 +584,7 @@ def main(args: Args) -> dict[str, list[float]]:
             timings["rollout_s"].append(rollout_end - iteration_start)
             timings["update_s"].append(iteration_end - rollout_end)
             timings["iteration_s"].append(iteration_end - iteration_start)
-            sps = int(global_step / (time.time() - start_time))
+            sps = int((global_step - start_global_step) / (time.time() - start_time))
             writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
             writer.add_scalar("charts/SPS", sps, global_step)
             writer.flush()
@@ -439,11 +593,39 @@ def main(args: Args) -> dict[str, list[float]]:
                 f"last_return={last_return:.1f}",
                 flush=True,
             )
+            if args.checkpoint_every and iteration % args.checkpoint_every == 0 and iteration < args.num_iterations:
+                save_checkpoint(checkpoint_path, agent, optimizer, args, iteration, rng_state())
+
+        save_checkpoint(checkpoint_path, agent, optimizer, args, args.num_iterations, rng_state())
+        if args.eval_episodes:
+            eval_returns, eval_lengths = evaluate(
+                agent, args.env_id, args.eval_episodes, args.seed + 1_000_000, args.eval_greedy, device
+            )
+            for game, ret in enumerate(eval_returns):
+                writer.add_scalar("eval/episodic_return", ret, game)
+            report = {
+                "env_id": args.env_id,
+                "algorithm": ALGORITHM,
+                "global_step": global_step,
+                "greedy": args.eval_greedy,
+                "seeds": [args.seed + 1_000_000 + i for i in range(args.eval_episodes)],
+                "returns": eval_returns,
+                "lengths": eval_lengths,
+                "mean": float(np.mean(eval_returns)),
+                "std_err": float(np.std(eval_returns) / np.sqrt(len(eval_returns))),  # population std, as the thesis
+            }
+            with open(os.path.join(run_dir, "eval.json"), "w") as f:
+                json.dump(report, f, indent=2)
+            print(
+                f"eval: {args.eval_episodes} games, return {report['mean']:.1f} ± {report['std_err']:.1f}",
+                flush=True,
+            )
 
         if args.save_model:
-            model_path = f"runs/{run_name}/{args.exp_name}.cleanrl_model"
+            model_path = os.path.join(run_dir, f"{args.exp_name}.cleanrl_model")
             save_agent(model_path, agent, args, num_actions)
             print(f"model saved to {model_path}", flush=True)
+        save_checkpoint(checkpoint_path, agent, optimizer, args, args.num_iterations, rng_state(), finished=True)
     finally:
         envs.close()
         writer.close()

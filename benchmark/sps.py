@@ -127,9 +127,7 @@ def main(args: Args) -> dict:
 
     import torch
 
-    device = (
-        torch.cuda.get_device_name(0) if args.cuda and torch.cuda.is_available() else platform.processor()
-    )
+    device = torch.cuda.get_device_name(0) if args.cuda and torch.cuda.is_available() else platform.processor()
     print(
         f"{args.env_id}: {args.num_envs} envs x {args.num_steps} steps, {args.update_epochs} epochs x "
         f"{args.num_minibatches} minibatches; {args.warmup} warm-up + {args.iterations} measured iterations; "

@@ -170,9 +170,7 @@ def test_betas_equal_the_recursive_ewma_then_min_max_per_environment(alpha):
 
 def test_alpha_one_is_plain_min_max():
     si = torch.tensor([[2.0, 0.0], [4.0, 1.0], [3.0, 3.0]])
-    torch.testing.assert_close(
-        p3o.compute_betas(si, 1.0), torch.tensor([[0.0, 0.0], [1.0, 1 / 3], [0.5, 1.0]])
-    )
+    torch.testing.assert_close(p3o.compute_betas(si, 1.0), torch.tensor([[0.0, 0.0], [1.0, 1 / 3], [0.5, 1.0]]))
 
 
 def test_betas_lie_in_unit_interval_and_span_it_per_environment():
@@ -238,9 +236,7 @@ def test_p3o_value_loss_weights_each_step_by_beta():
 
 def test_value_loss_clipping_takes_the_larger_error():
     # new value moved from 0 to 1 but the clipped one only to 0.1; returns at 1: clipped error wins
-    loss = ppo.value_loss(
-        torch.tensor([1.0]), torch.tensor([0.0]), torch.tensor([1.0]), torch.ones(1), 0.1, True
-    )
+    loss = ppo.value_loss(torch.tensor([1.0]), torch.tensor([0.0]), torch.tensor([1.0]), torch.ones(1), 0.1, True)
     assert loss.item() == pytest.approx(0.5 * 0.9**2)
 
 
