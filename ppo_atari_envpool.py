@@ -277,9 +277,10 @@ def check_resume_args(args: Args, saved: dict, path: str) -> None:
         sys.exit(f"error: --resume {path} was started with {', '.join(differ)}; resume it with the same arguments.")
 
 
-def evaluate(agent, env_id, episodes, seed, greedy, device) -> tuple[list[float], list[int]]:
+def evaluate(agent, env_id, episodes, seed, greedy, device) -> dict:
     """Play `episodes` full games (all lives), game i in its own environment seeded `seed + i`, with
-    actions sampled from the policy (or its most probable action when `greedy`). Unclipped returns."""
+    actions sampled from the policy (or its most probable action when `greedy`); unclipped returns.
+    The mean's standard error uses the population standard deviation, as the thesis's table 5.1."""
     envs = make_env(env_id, episodes, seed)
     obs_np, _ = envs.reset()
     returns = np.zeros(episodes)
@@ -294,7 +295,24 @@ def evaluate(agent, env_id, episodes, seed, greedy, device) -> tuple[list[float]
             lengths += playing
             playing &= ~np.logical_or(info["terminated"].astype(bool), truncations)
     envs.close()
-    return returns.tolist(), lengths.tolist()
+    return {
+        "env_id": env_id,
+        "greedy": greedy,
+        "seeds": [seed + i for i in range(episodes)],
+        "returns": returns.tolist(),
+        "lengths": lengths.tolist(),
+        "mean": float(returns.mean()),
+        "std_err": float(returns.std() / np.sqrt(episodes)),
+    }
+
+
+def write_evaluation(report: dict, run_dir: str, writer) -> None:
+    """Each game's return under `eval/episodic_return` (step = game index), and `eval.json`."""
+    for game, ret in enumerate(report["returns"]):
+        writer.add_scalar("eval/episodic_return", ret, game)
+    writer.flush()
+    with open(os.path.join(run_dir, "eval.json"), "w") as f:
+        json.dump(report, f, indent=2)
 
 
 def gae(rewards, values, dones, next_value, next_done, gamma, gae_lambda):
@@ -598,27 +616,10 @@ def main(args: Args) -> dict[str, list[float]]:
 
         save_checkpoint(checkpoint_path, agent, optimizer, args, args.num_iterations, rng_state())
         if args.eval_episodes:
-            eval_returns, eval_lengths = evaluate(
-                agent, args.env_id, args.eval_episodes, args.seed + 1_000_000, args.eval_greedy, device
-            )
-            for game, ret in enumerate(eval_returns):
-                writer.add_scalar("eval/episodic_return", ret, game)
-            report = {
-                "env_id": args.env_id,
-                "algorithm": ALGORITHM,
-                "global_step": global_step,
-                "greedy": args.eval_greedy,
-                "seeds": [args.seed + 1_000_000 + i for i in range(args.eval_episodes)],
-                "returns": eval_returns,
-                "lengths": eval_lengths,
-                "mean": float(np.mean(eval_returns)),
-                "std_err": float(np.std(eval_returns) / np.sqrt(len(eval_returns))),  # population std, as the thesis
-            }
-            with open(os.path.join(run_dir, "eval.json"), "w") as f:
-                json.dump(report, f, indent=2)
+            report = evaluate(agent, args.env_id, args.eval_episodes, args.seed + 1_000_000, args.eval_greedy, device)
+            write_evaluation(report | {"algorithm": ALGORITHM, "global_step": global_step}, run_dir, writer)
             print(
-                f"eval: {args.eval_episodes} games, return {report['mean']:.1f} ± {report['std_err']:.1f}",
-                flush=True,
+                f"eval: {args.eval_episodes} games, return {report['mean']:.1f} ± {report['std_err']:.1f}", flush=True
             )
 
         if args.save_model:
