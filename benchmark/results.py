@@ -1,0 +1,361 @@
+"""From folders of TensorBoard runs to the thesis's table 5.1 and figures 5.1-5.16, and a P3O-vs-PPO
+comparison across games (interquartile mean of human-normalised scores, rliable's protocol).
+
+    uv run python benchmark/results.py runs/ --out results/
+    uv run python benchmark/results.py runs/ --out results/ --tag charts/episodic_return --last 100 \
+        --table-name train_last100 --no-figures
+
+Runs are folders holding `events.out.tfevents.*` files, named as CleanRL names them,
+`{env_id}__{exp_name}__{seed}__...`, and grouped by env id and exp name (`--group-regex` with named
+groups `env` and `algo` overrides that). Runs with unreadable files, no events or a missing tag are
+reported by name and skipped.
+"""
+
+import csv
+import glob
+import os
+import re
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+import tyro
+
+# Per-game random and human reference scores for human-normalised scores, (score - random) / (human -
+# random), as tabulated for the Atari benchmark (Mnih et al. 2015; Badia et al. 2020, Agent57).
+REFERENCE_SCORES = {
+    "Alien": (227.8, 7127.7),
+    "Asterix": (210.0, 8503.3),
+    "BeamRider": (363.9, 16926.5),
+    "Breakout": (1.7, 30.5),
+    "Enduro": (0.0, 860.5),
+    "Freeway": (0.0, 29.6),
+    "MsPacman": (307.3, 6951.6),
+    "Pong": (-20.7, 14.6),
+    "Qbert": (163.9, 13455.0),
+    "Riverraid": (1338.5, 17118.0),
+    "Seaquest": (68.4, 42054.7),
+    "SpaceInvaders": (148.0, 1668.7),
+}
+FIGURES = {  # file suffix: (tag, y label, title)
+    "episodic_return": ("charts/episodic_return", "episodic return (game score)", "episodic return, mean ± s.e."),
+    "return_last10": ("charts/episodic_return", "mean return of the last 10 games", "last-10-games average"),
+    "return_variance": ("charts/episodic_return", "variance across runs (score²)", "across-run variance of return"),
+    "entropy": ("losses/entropy", "policy entropy (nats)", "entropy"),
+    "explained_variance": ("losses/explained_variance", "explained variance", "explained variance"),
+    "policy_loss": ("losses/policy_loss", "policy loss", "policy loss"),
+    "value_loss": ("losses/value_loss", "value loss", "value loss"),
+    "beta_mean": ("p3o/beta_mean", "mean β", "P3O mean β"),
+}
+
+
+@dataclass
+class Args:
+    roots: tyro.conf.Positional[tuple[str, ...]]
+    """folders to search for runs (recursively)"""
+    out: str = "results"
+    """folder for the tables and figures"""
+    tag: str = "eval/episodic_return"
+    """the tag the table summarises"""
+    last: int = 0
+    """per-run statistic: the mean of the run's last K values of the tag (0: of all its values)"""
+    table_name: str = "table"
+    """the table is written to OUT/TABLE_NAME.md and .csv"""
+    group_regex: str | None = None
+    """regex with named groups `env` and `algo`, searched in each run folder's name"""
+    figures: bool = True
+    """write the figures"""
+    grid_points: int = 200
+    """points of the common step grid that curves are interpolated onto"""
+    p3o_name: str = "p3o_atari_envpool"
+    """the algorithm (exp name) compared against --ppo-name across games"""
+    ppo_name: str = "ppo_atari_envpool"
+    """the baseline algorithm"""
+    bootstrap_reps: int = 2000
+    """stratified-bootstrap replications for the across-game confidence intervals"""
+    seed: int = 0
+    """seed of the bootstrap"""
+
+
+@dataclass
+class Run:
+    path: str
+    env: str
+    algo: str
+    scalars: dict  # tag -> (steps, values) as numpy arrays
+
+
+def find_runs(roots, group_regex=None) -> tuple[list[Run], list[str]]:
+    """Every folder under the roots with an event file, read with TensorBoard's own reader."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    runs, problems = [], []
+    folders = set()
+    for root in roots:
+        if not os.path.isdir(root):
+            problems.append(f"{root}: not a folder")
+            continue
+        for path in glob.glob(os.path.join(root, "**", "events.out.tfevents.*"), recursive=True):
+            folders.add(os.path.dirname(path))
+    pattern = re.compile(group_regex) if group_regex else None
+    for folder in sorted(folders):
+        name = os.path.basename(os.path.normpath(folder))
+        if pattern:
+            match = pattern.search(name)
+            if not match:
+                problems.append(f"{folder}: name does not match --group-regex, skipped")
+                continue
+            env, algo = match.group("env"), match.group("algo")
+        else:
+            parts = name.split("__")
+            if len(parts) < 2:
+                problems.append(f"{folder}: name is not {{env_id}}__{{exp_name}}__..., skipped")
+                continue
+            env, algo = parts[0], parts[1]
+        try:
+            acc = EventAccumulator(folder, size_guidance={"scalars": 0})
+            acc.Reload()
+            scalars = {}
+            for tag in acc.Tags()["scalars"]:
+                events = acc.Scalars(tag)
+                steps = np.array([e.step for e in events], dtype=np.float64)
+                values = np.array([e.value for e in events], dtype=np.float64)
+                order = np.argsort(steps, kind="stable")
+                scalars[tag] = (steps[order], values[order])
+        except Exception as e:  # a truncated or foreign file: say which, go on
+            problems.append(f"{folder}: unreadable event file ({type(e).__name__}: {e}), skipped")
+            continue
+        if not scalars:
+            problems.append(f"{folder}: no scalar events, skipped")
+            continue
+        runs.append(Run(folder, env, algo, scalars))
+    return runs, problems
+
+
+def run_statistic(run: Run, tag: str, last: int) -> float | None:
+    if tag not in run.scalars or len(run.scalars[tag][1]) == 0:
+        return None
+    values = run.scalars[tag][1]
+    return float(values[-last:].mean() if last else values.mean())
+
+
+def summarise(runs, tag, last) -> tuple[dict, list[str]]:
+    """(env, algo) -> (mean, standard error, n) of the per-run statistic; the standard error uses the
+    population standard deviation, std / sqrt(n), as the thesis's table 5.1."""
+    per_group, problems = {}, []
+    for run in runs:
+        stat = run_statistic(run, tag, last)
+        if stat is None:
+            problems.append(f"{run.path}: no '{tag}' values, left out of the table")
+            continue
+        per_group.setdefault((run.env, run.algo), []).append(stat)
+    table = {}
+    for key, stats in sorted(per_group.items()):
+        x = np.array(stats)
+        table[key] = (float(x.mean()), float(x.std() / np.sqrt(len(x))), len(x))
+    return table, problems
+
+
+def write_table(table, out, name, tag, last) -> str:
+    envs = sorted({env for env, _ in table})
+    algos = sorted({algo for _, algo in table})
+    statistic = f"mean of the last {last} values" if last else "mean of all values"
+    lines = [
+        f"`{tag}`, per run the {statistic}; mean ± standard error (population std / √n) over n runs.",
+        "",
+        "| game | " + " | ".join(algos) + " |",
+        "|---|" + "---|" * len(algos),
+    ]
+    for env in envs:
+        cells = []
+        for algo in algos:
+            if (env, algo) in table:
+                mean, se, n = table[env, algo]
+                cells.append(f"{mean:.1f} ± {se:.1f} (n={n})")
+            else:
+                cells.append("–")
+        lines.append(f"| {env} | " + " | ".join(cells) + " |")
+    markdown = "\n".join(lines) + "\n"
+    with open(os.path.join(out, f"{name}.md"), "w") as f:
+        f.write(markdown)
+    with open(os.path.join(out, f"{name}.csv"), "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["game", "algorithm", "tag", "last", "n", "mean", "std_err"])
+        for (env, algo), (mean, se, n) in table.items():
+            writer.writerow([env, algo, tag, last, n, mean, se])
+    return markdown
+
+
+def last10_average(steps, values):
+    """At each logged game, the average return of the last 10 games (thesis fig. 5.5)."""
+    cumulative = np.concatenate([[0.0], np.cumsum(values)])
+    index = np.arange(1, len(values) + 1)
+    start = np.maximum(index - 10, 0)
+    return steps, (cumulative[index] - cumulative[start]) / (index - start)
+
+
+def interpolate(curves, grid_points):
+    """Curves logged at different steps, aligned by linear interpolation onto one common step grid that
+    spans the steps every curve covers (never by index). Returns (grid, [runs x grid] values)."""
+    curves = [(s, v) for s, v in curves if len(s) > 0]
+    if not curves:
+        return None, None
+    lo = max(s[0] for s, _ in curves)
+    hi = min(s[-1] for s, _ in curves)
+    if hi < lo:
+        return None, None
+    grid = np.linspace(lo, hi, grid_points) if hi > lo else np.array([lo])
+    return grid, np.stack([np.interp(grid, s, v) for s, v in curves])
+
+
+def figure_curves(runs, kind, grid_points):
+    """For one game and one figure: algo -> (grid, centre, band or None)."""
+    tag = FIGURES[kind][0]
+    curves = {}
+    for algo in sorted({r.algo for r in runs}):
+        series = [r.scalars[tag] for r in runs if r.algo == algo and tag in r.scalars]
+        if kind == "return_last10":
+            series = [last10_average(s, v) for s, v in series]
+        grid, values = interpolate(series, grid_points)
+        if grid is None:
+            continue
+        if kind == "return_variance":
+            curves[algo] = (grid, values.var(axis=0), None)
+        else:
+            mean = values.mean(axis=0)
+            se = values.std(axis=0) / np.sqrt(len(values))
+            curves[algo] = (grid, mean, se if len(values) > 1 else None)
+    return curves
+
+
+def write_figures(runs, out, grid_points) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    written = []
+    for env in sorted({r.env for r in runs}):
+        env_runs = [r for r in runs if r.env == env]
+        for kind, (_, ylabel, title) in FIGURES.items():
+            curves = figure_curves(env_runs, kind, grid_points)
+            if not curves:
+                continue
+            fig, ax = plt.subplots(figsize=(6.4, 4.2))
+            for algo, (grid, centre, band) in curves.items():
+                n = sum(1 for r in env_runs if r.algo == algo and FIGURES[kind][0] in r.scalars)
+                (line,) = ax.plot(grid, centre, label=f"{algo} (n={n})")
+                if band is not None:
+                    ax.fill_between(grid, centre - band, centre + band, color=line.get_color(), alpha=0.25)
+            ax.set_xlabel("environment steps")
+            ax.set_ylabel(ylabel)
+            ax.set_title(f"{env}: {title}")
+            ax.grid(alpha=0.3)
+            ax.legend()
+            fig.tight_layout()
+            path = os.path.join(out, f"{env}__{kind}.png")
+            fig.savefig(path, dpi=120)
+            plt.close(fig)
+            written.append(path)
+    return written
+
+
+def human_normalised(score, env):
+    game = env.split("-")[0]
+    random_score, human_score = REFERENCE_SCORES[game]
+    return (score - random_score) / (human_score - random_score)
+
+
+def across_games(runs, tag, last, p3o, ppo, reps, seed) -> tuple[str | None, list[str]]:
+    """IQM of human-normalised scores with stratified-bootstrap 95% CIs, and the probability that P3O
+    improves on PPO, with rliable (Agarwal et al. 2021)."""
+    from rliable import library as rly
+    from rliable import metrics
+
+    notes = []
+    per = {}
+    for run in runs:
+        stat = run_statistic(run, tag, last)
+        if stat is None or run.algo not in (p3o, ppo):
+            continue
+        if run.env.split("-")[0] not in REFERENCE_SCORES:
+            notes.append(f"{run.env}: no human/random reference score, left out of the across-game comparison")
+            continue
+        per.setdefault(run.env, {}).setdefault(run.algo, []).append(human_normalised(stat, run.env))
+    games = sorted(env for env, algos in per.items() if p3o in algos and ppo in algos)
+    if not games:
+        return None, sorted(set(notes))
+    n = min(len(per[env][algo]) for env in games for algo in (p3o, ppo))
+    if any(len(per[env][algo]) != n for env in games for algo in (p3o, ppo)):
+        notes.append(f"runs per game differ; the first {n} of each game and algorithm are used")
+    scores = {algo: np.array([[per[env][algo][i] for env in games] for i in range(n)]) for algo in (p3o, ppo)}
+    state = np.random.RandomState(seed)
+    iqm, iqm_ci = rly.get_interval_estimates(
+        scores, lambda x: np.array([metrics.aggregate_iqm(x)]), reps=reps, random_state=state
+    )
+    pair = f"{p3o},{ppo}"
+    poi, poi_ci = rly.get_interval_estimates(
+        {pair: (scores[p3o], scores[ppo])}, metrics.probability_of_improvement, reps=reps, random_state=state
+    )
+    lines = [
+        f"Across {len(games)} game(s) ({', '.join(games)}), {n} run(s) each, `{tag}`"
+        + (f" (last {last})" if last else "")
+        + f"; {reps} stratified-bootstrap replications (rliable).",
+        "",
+        "| algorithm | IQM human-normalised score | 95% CI |",
+        "|---|---|---|",
+    ]
+    for algo in (p3o, ppo):
+        lines.append(f"| {algo} | {iqm[algo][0]:.3f} | [{iqm_ci[algo][0][0]:.3f}, {iqm_ci[algo][1][0]:.3f}] |")
+    lines += [
+        "",
+        f"P({p3o} > {ppo}) = {float(np.squeeze(poi[pair])):.3f}, 95% CI "
+        f"[{float(np.squeeze(poi_ci[pair][0])):.3f}, {float(np.squeeze(poi_ci[pair][1])):.3f}]",
+    ]
+    return "\n".join(lines) + "\n", sorted(set(notes))
+
+
+def main(args: Args) -> dict:
+    if args.last < 0 or args.grid_points < 2 or args.bootstrap_reps < 1:
+        sys.exit("error: --last must be 0 or more, --grid-points at least 2 and --bootstrap-reps at least 1.")
+    if args.group_regex:
+        try:
+            if not {"env", "algo"} <= set(re.compile(args.group_regex).groupindex):
+                sys.exit("error: --group-regex needs the named groups (?P<env>...) and (?P<algo>...).")
+        except re.error as e:
+            sys.exit(f"error: --group-regex is not a regular expression ({e}).")
+    runs, problems = find_runs(args.roots, args.group_regex)
+    for problem in problems:
+        print(f"skipped: {problem}", file=sys.stderr)
+    if not runs:
+        sys.exit(f"error: no readable runs under {', '.join(args.roots)}.")
+    os.makedirs(args.out, exist_ok=True)
+    table, missing = summarise(runs, args.tag, args.last)
+    for problem in missing:
+        print(f"skipped: {problem}", file=sys.stderr)
+    result = {"runs": len(runs), "table": table, "figures": [], "across_games": None}
+    if table:
+        print(write_table(table, args.out, args.table_name, args.tag, args.last))
+        print(f"wrote {os.path.join(args.out, args.table_name)}.md and .csv")
+    else:
+        print(f"no run has '{args.tag}'; no table written", file=sys.stderr)
+    comparison, notes = across_games(
+        runs, args.tag, args.last, args.p3o_name, args.ppo_name, args.bootstrap_reps, args.seed
+    )
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
+    if comparison:
+        with open(os.path.join(args.out, f"{args.table_name}_across_games.md"), "w") as f:
+            f.write(comparison)
+        print(comparison)
+        result["across_games"] = comparison
+    if args.figures:
+        result["figures"] = write_figures(runs, args.out, args.grid_points)
+        print(f"wrote {len(result['figures'])} figures to {args.out}/")
+        for path in result["figures"]:
+            print(f"  {path}")
+    return result
+
+
+if __name__ == "__main__":
+    main(tyro.cli(Args))

@@ -1,0 +1,158 @@
+"""benchmark/results.py on event files written here with SummaryWriter, with known values."""
+
+import csv
+import importlib.util
+import os
+
+import numpy as np
+import pytest
+from torch.utils.tensorboard import SummaryWriter
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+spec = importlib.util.spec_from_file_location("results", os.path.join(ROOT, "benchmark", "results.py"))
+results = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(results)
+
+P3O, PPO = "p3o_atari_envpool", "ppo_atari_envpool"
+# eval returns per (game, algo, seed): 10 games each, known means
+EVAL = {
+    ("Breakout-v5", P3O): [[10.0] * 10, [20.0] * 10, [30.0] * 10],
+    ("Breakout-v5", PPO): [[5.0] * 10, [7.0] * 10, [9.0] * 10],
+    ("Qbert-v5", P3O): [list(range(10)), [100.0] * 10, [200.0] * 10],
+    ("Qbert-v5", PPO): [[50.0] * 10, [150.0] * 10, [250.0] * 10],
+}
+
+
+def write_run(root, env, algo, seed, eval_returns, step_every):
+    run = os.path.join(root, f"{env}__{algo}__{seed}__1700000000")
+    writer = SummaryWriter(run)
+    for game, ret in enumerate(eval_returns):
+        writer.add_scalar("eval/episodic_return", ret, game)
+    # a training curve: episodic return = step / 1000 (+ seed), logged every `step_every` steps
+    for step in range(step_every, 100_001, step_every):
+        writer.add_scalar("charts/episodic_return", step / 1000 + seed, step)
+        writer.add_scalar("losses/entropy", 1.0 - step / 200_000, step)
+        writer.add_scalar("losses/explained_variance", 0.5, step)
+        writer.add_scalar("losses/policy_loss", -0.01, step)
+        writer.add_scalar("losses/value_loss", 0.1, step)
+        if algo == P3O:
+            writer.add_scalar("p3o/beta_mean", 0.4, step)
+    writer.close()
+    return run
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    root = str(tmp_path_factory.mktemp("runs"))
+    for (env, algo), per_seed in EVAL.items():
+        for seed, returns in enumerate(per_seed, start=1):
+            write_run(root, env, algo, seed, returns, step_every=1000 * seed)  # different logging steps
+    # problem runs, reported and skipped
+    os.makedirs(os.path.join(root, "Breakout-v5__p3o_atari_envpool__9__1"))
+    with open(os.path.join(root, "Breakout-v5__p3o_atari_envpool__9__1", "events.out.tfevents.1.x.1"), "wb") as f:
+        f.write(b"\x00\x01garbage, not a record")
+    empty = SummaryWriter(os.path.join(root, "Qbert-v5__ppo_atari_envpool__8__1"))
+    empty.close()
+    no_eval = SummaryWriter(os.path.join(root, "Qbert-v5__p3o_atari_envpool__7__1"))
+    no_eval.add_scalar("losses/entropy", 1.0, 1)
+    no_eval.close()
+    return root
+
+
+def test_table_means_standard_errors_and_n_are_exact(root, tmp_path, capsys):
+    out = str(tmp_path / "out")
+    result = results.main(results.Args(roots=(root,), out=out, figures=False, bootstrap_reps=200))
+    table = result["table"]
+    # per-run means: Breakout P3O 10, 20, 30 -> mean 20, population std sqrt(200/3)
+    assert table["Breakout-v5", P3O] == pytest.approx((20.0, np.sqrt(200 / 3) / np.sqrt(3), 3))
+    assert table["Breakout-v5", PPO] == pytest.approx((7.0, np.sqrt(8 / 3) / np.sqrt(3), 3))
+    assert table["Qbert-v5", P3O] == pytest.approx((np.mean([4.5, 100, 200]), np.std([4.5, 100, 200]) / np.sqrt(3), 3))
+    assert table["Qbert-v5", PPO] == pytest.approx((150.0, np.std([50, 150, 250]) / np.sqrt(3), 3))
+    with open(os.path.join(out, "table.csv")) as f:
+        rows = list(csv.DictReader(f))
+    row = next(r for r in rows if r["game"] == "Breakout-v5" and r["algorithm"] == P3O)
+    assert float(row["mean"]) == pytest.approx(20.0) and int(row["n"]) == 3
+    markdown = open(os.path.join(out, "table.md")).read()
+    assert f"| Breakout-v5 | 20.0 ± {np.sqrt(200 / 3) / np.sqrt(3):.1f} (n=3) | 7.0 ± 0.9 (n=3) |" in markdown
+    err = capsys.readouterr().err
+    assert "Breakout-v5__p3o_atari_envpool__9__1" in err  # unreadable
+    assert "Qbert-v5__ppo_atari_envpool__8__1" in err  # empty
+    assert "Qbert-v5__p3o_atari_envpool__7__1: no 'eval/episodic_return' values" in err  # missing tag
+
+
+def test_last_k_statistic(root, tmp_path):
+    result = results.main(
+        results.Args(roots=(root,), out=str(tmp_path), tag="charts/episodic_return", last=10, figures=False)
+    )
+    # seed s logs step/1000 + s every 1000 s steps up to 100000
+    expected = [np.mean([step / 1000 + s for step in range(1000 * s, 100_001, 1000 * s)][-10:]) for s in (1, 2, 3)]
+    mean, se, n = result["table"]["Breakout-v5", PPO]
+    assert (mean, se, n) == pytest.approx((np.mean(expected), np.std(expected) / np.sqrt(3), 3))
+
+
+def test_group_regex_overrides_grouping(root, tmp_path):
+    result = results.main(
+        results.Args(
+            roots=(root,), out=str(tmp_path), figures=False, group_regex=r"^(?P<env>[A-Za-z]+)-v5__(?P<algo>p..)"
+        )
+    )
+    assert set(result["table"]) == {("Breakout", "p3o"), ("Breakout", "ppo"), ("Qbert", "p3o"), ("Qbert", "ppo")}
+
+
+def test_interpolation_aligns_runs_logged_at_different_steps():
+    a = (np.array([0.0, 10.0, 20.0]), np.array([0.0, 10.0, 20.0]))
+    b = (np.array([5.0, 25.0]), np.array([0.0, 40.0]))
+    grid, values = results.interpolate([a, b], 4)
+    np.testing.assert_allclose(grid, [5.0, 10.0, 15.0, 20.0])  # the steps both runs cover
+    np.testing.assert_allclose(values[0], [5.0, 10.0, 15.0, 20.0])
+    np.testing.assert_allclose(values[1], [0.0, 10.0, 20.0, 30.0])
+
+
+def test_curves_of_runs_with_different_logging_steps_average_by_step(root):
+    runs, _ = results.find_runs((root,))
+    breakout = [r for r in runs if r.env == "Breakout-v5"]
+    curves = results.figure_curves(breakout, "episodic_return", 50)
+    grid, mean, se = curves[PPO]
+    # seeds 1, 2, 3 log step/1000 + seed at every 1000, 2000, 3000 steps: at any common step the mean
+    # is step/1000 + 2 and the standard error that of (1, 2, 3); by index they would not line up
+    np.testing.assert_allclose(mean, grid / 1000 + 2, rtol=1e-6)
+    np.testing.assert_allclose(se, np.std([1, 2, 3]) / np.sqrt(3), rtol=1e-6)
+    _, variance, _ = results.figure_curves(breakout, "return_variance", 50)[PPO]
+    np.testing.assert_allclose(variance, np.var([1, 2, 3]), rtol=1e-6)
+
+
+def test_last10_average():
+    steps = np.arange(12.0)
+    _, avg = results.last10_average(steps, np.arange(12.0))
+    np.testing.assert_allclose(avg[:3], [0.0, 0.5, 1.0])
+    np.testing.assert_allclose(avg[-1], np.mean(np.arange(2, 12)))
+
+
+def test_figures_are_valid_pngs(root, tmp_path):
+    out = str(tmp_path / "figs")
+    result = results.main(results.Args(roots=(root,), out=out, bootstrap_reps=200))
+    names = {os.path.basename(p) for p in result["figures"]}
+    for env in ("Breakout-v5", "Qbert-v5"):
+        for kind in results.FIGURES:
+            assert f"{env}__{kind}.png" in names
+    for path in result["figures"]:
+        with open(path, "rb") as f:
+            assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+        assert os.path.getsize(path) > 10_000
+
+
+def test_across_games_iqm_and_probability_of_improvement(root, tmp_path):
+    result = results.main(results.Args(roots=(root,), out=str(tmp_path), figures=False, bootstrap_reps=500))
+    text = result["across_games"]
+    assert "Across 2 game(s) (Breakout-v5, Qbert-v5), 3 run(s) each" in text
+    assert f"P({P3O} > {PPO}) = " in text
+    # Breakout: every P3O run beats every PPO run, Qbert: P3O's runs (4.5, 100, 200) vs (50, 150, 250)
+    # win 0 + 1 + 2 = 3 of 9 pairs -> P = (1 + 3/9) / 2
+    p = float(text.split(f"P({P3O} > {PPO}) = ")[1].split(",")[0])
+    assert p == pytest.approx((1 + 3 / 9) / 2, abs=1e-3)
+    assert os.path.isfile(tmp_path / "table_across_games.md")
+
+
+def test_no_runs_is_a_clear_error(tmp_path):
+    with pytest.raises(SystemExit, match="no readable runs"):
+        results.main(results.Args(roots=(str(tmp_path),), out=str(tmp_path / "o")))
