@@ -38,6 +38,8 @@ class Args:
     """write `runs/{run_name}/checkpoint.pt` every this many iterations (0: only at the end and on a signal)"""
     resume: str | None = None
     """continue the run of this checkpoint (a `checkpoint.pt` or its run folder)"""
+    auto_resume: bool = False
+    """continue `runs/{run_name}` if it holds a checkpoint, else start it (for sweeps and requeued jobs)"""
     eval_episodes: int = 10
     """after training, play this many full games (each its own environment and seed) and log their returns"""
     eval_greedy: bool = False
@@ -111,6 +113,8 @@ def check_args(args: Args) -> None:
     for name in ("checkpoint_every", "eval_episodes"):
         if getattr(args, name) < 0:
             sys.exit(f"error: --{name.replace('_', '-')} must be 0 or more, got {getattr(args, name)}.")
+    if args.auto_resume and not args.run_name:
+        sys.exit("error: --auto-resume needs --run-name, the run folder it continues.")
     batch_size = args.num_envs * args.num_steps
     if batch_size % args.num_minibatches != 0:
         sys.exit(
@@ -208,6 +212,7 @@ RESUMABLE_ARGS = {
     "save_model",
     "checkpoint_every",
     "resume",
+    "auto_resume",
     "eval_episodes",
     "eval_greedy",
     "torch_deterministic",
@@ -272,6 +277,13 @@ def load_checkpoint(path: str) -> tuple[str, dict]:
             f"resume it with {checkpoint['algorithm']}_atari_envpool.py."
         )
     return path, checkpoint
+
+
+def restore(checkpoint: dict, agent, optimizer) -> None:
+    """Model, optimizer (with its learning rate) and random states as the checkpoint saved them."""
+    agent.load_state_dict(checkpoint["model_state_dict"])
+    optimizer.load_state_dict(checkpoint["optimizer_state_dict"])
+    set_rng_state(checkpoint["rng_state"])
 
 
 def check_resume_args(args: Args, saved: dict, path: str) -> None:
@@ -417,6 +429,8 @@ def main(args: Args) -> dict[str, list[float]]:
     args.minibatch_size = int(args.batch_size // args.num_minibatches)
     args.num_iterations = args.total_timesteps // args.batch_size
     checkpoint = None
+    if args.auto_resume and args.resume is None and os.path.exists(f"runs/{args.run_name}/checkpoint.pt"):
+        args.resume = f"runs/{args.run_name}"
     if args.resume is not None:
         checkpoint_path, checkpoint = load_checkpoint(args.resume)
         check_resume_args(args, checkpoint["args"], checkpoint_path)
@@ -459,9 +473,7 @@ def main(args: Args) -> dict[str, list[float]]:
     agent = Agent(num_actions).to(device, memory_format=torch.channels_last)
     optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=device.type == "cuda")
     if checkpoint:
-        agent.load_state_dict(checkpoint["model_state_dict"])
-        optimizer.load_state_dict(checkpoint["optimizer_state_dict"])
-        set_rng_state(checkpoint["rng_state"])
+        restore(checkpoint, agent, optimizer)
         print(
             f"resuming {run_dir} after iteration {start_iteration} ({checkpoint['global_step']} steps)",
             flush=True,

@@ -1,0 +1,111 @@
+#!/usr/bin/env bash
+# The thesis's grid: 6 games x 10 seeds x {PPO, P3O}, 20M steps each (thesis section 5.1), locally or
+# as one Slurm job array. Runs go under runs/ in the current folder, as the training scripts' do.
+# Every run has a fixed name, runs/$GROUP/{env_id}__{exp_name}__{seed}, and is started with --auto-resume: running the sweep again skips finished runs (the script says so and
+# exits 0) and continues unfinished ones from their checkpoints, and a requeued Slurm task does the same.
+#
+#   bash benchmark/p3o_vs_ppo.sh                        # local: WORKERS runs at a time, a log per run
+#   SLURM=1 bash benchmark/p3o_vs_ppo.sh                # one sbatch --array job, one task per run
+#   DRY_RUN=1 bash benchmark/p3o_vs_ppo.sh              # print the commands (and the sbatch script)
+#
+# Knobs (environment variables):
+#   GAMES            envpool ids (default: the thesis's six games)
+#   SEEDS            seeds (default: 1 2 ... 10)
+#   TOTAL_TIMESTEPS  steps per run (default: 20000000)
+#   EXTRA_ARGS       more flags for both scripts, e.g. "--num-envs 64"
+#   WORKERS          runs at a time: local processes, or the array's % limit under Slurm (default: 1)
+#   GROUP            folder under runs/ (default: p3o_vs_ppo)
+#   PYTHON           how to start python (default: "uv run python", with --project when run elsewhere)
+#   SBATCH_ARGS      extra sbatch options (default: "--gres=gpu:1 --cpus-per-task=16 --time=24:00:00")
+#   SIGNAL_SECONDS   Slurm signals SIGTERM this long before the time limit (default: 300)
+set -euo pipefail
+
+GAMES=${GAMES:-"Breakout-v5 Freeway-v5 Seaquest-v5 Riverraid-v5 Qbert-v5 MsPacman-v5"}
+SEEDS=${SEEDS:-"1 2 3 4 5 6 7 8 9 10"}
+TOTAL_TIMESTEPS=${TOTAL_TIMESTEPS:-20000000}
+EXTRA_ARGS=${EXTRA_ARGS:-}
+WORKERS=${WORKERS:-1}
+GROUP=${GROUP:-p3o_vs_ppo}
+# the training scripts, by the shortest path from here
+root=$(cd "$(dirname "$0")/.." && pwd)
+if [ "$root" = "$PWD" ]; then scripts=""; else scripts="$root/"; fi
+if [ "$root" = "$PWD" ]; then PYTHON=${PYTHON:-"uv run python"}; else PYTHON=${PYTHON:-"uv run --project $root python"}; fi
+SBATCH_ARGS=${SBATCH_ARGS-"--gres=gpu:1 --cpus-per-task=16 --time=24:00:00"}
+SIGNAL_SECONDS=${SIGNAL_SECONDS:-300}
+
+# the thesis's EWMA alpha per game (section 5.1.2): 0.75 for MsPacman, 0.6 for Riverraid, 0.9 otherwise
+alpha_for() {
+    case "$1" in
+        MsPacman-*) echo 0.75 ;;
+        Riverraid-*) echo 0.6 ;;
+        *) echo 0.9 ;;
+    esac
+}
+
+commands=()
+names=()
+for game in $GAMES; do
+    for seed in $SEEDS; do
+        for algo in ppo p3o; do
+            name="$GROUP/${game}__${algo}_atari_envpool__${seed}"
+            cmd="$PYTHON ${scripts}${algo}_atari_envpool.py --env-id $game --seed $seed --total-timesteps $TOTAL_TIMESTEPS"
+            if [ "$algo" = p3o ]; then cmd+=" --ewma-alpha $(alpha_for "$game")"; fi
+            cmd+=" --run-name $name --auto-resume"
+            if [ -n "$EXTRA_ARGS" ]; then cmd+=" $EXTRA_ARGS"; fi
+            commands+=("$cmd")
+            names+=("$name")
+        done
+    done
+done
+
+logs="runs/$GROUP/logs"
+
+sbatch_script() {
+    cat <<SBATCH
+#!/usr/bin/env bash
+#SBATCH --job-name=$GROUP
+#SBATCH --array=0-$((${#commands[@]} - 1))%$WORKERS
+#SBATCH --requeue
+#SBATCH --signal=B:TERM@$SIGNAL_SECONDS
+#SBATCH --output=$PWD/$logs/slurm-%A_%a.log
+#SBATCH --open-mode=append
+set -uo pipefail
+cd "$PWD"
+commands=(
+$(printf '    %q\n' "${commands[@]}")
+)
+# SIGTERM (preemption, or SIGNAL_SECONDS before the time limit) goes to the training script, which writes
+# a checkpoint and exits; the task then requeues itself and continues with --auto-resume.
+bash -c "exec \${commands[\$SLURM_ARRAY_TASK_ID]}" &
+child=\$!
+trap 'kill -TERM \$child; wait \$child; scontrol requeue "\${SLURM_ARRAY_JOB_ID}_\${SLURM_ARRAY_TASK_ID}"; exit 0' TERM
+wait \$child
+SBATCH
+}
+
+if [ "${DRY_RUN:-0}" = 1 ]; then
+    printf '%s\n' "${commands[@]}"
+    if [ "${SLURM:-0}" = 1 ]; then
+        echo "# sbatch $SBATCH_ARGS runs/$GROUP/slurm/$GROUP.sbatch, with:"
+        sbatch_script
+    fi
+    exit 0
+fi
+
+mkdir -p "$logs"
+if [ "${SLURM:-0}" = 1 ]; then
+    mkdir -p "runs/$GROUP/slurm"
+    sbatch_script > "runs/$GROUP/slurm/$GROUP.sbatch"
+    # shellcheck disable=SC2086
+    sbatch $SBATCH_ARGS "runs/$GROUP/slurm/$GROUP.sbatch"
+    exit 0
+fi
+
+# local mode: at most WORKERS runs at a time, each appending to its own log
+failed=0
+for i in "${!commands[@]}"; do
+    log="$logs/$(basename "${names[$i]}").log"
+    printf '%s\0%s\0' "${commands[$i]}" "$log"
+done | xargs -0 -n 2 -P "$WORKERS" bash -c 'echo "start: $0"; if $0 >> "$1" 2>&1; then echo "done:  $0"; else echo "FAILED (see $1): $0"; exit 1; fi' || failed=1
+echo "logs in $logs/, runs in runs/$GROUP/"
+exit $failed
