@@ -184,3 +184,66 @@ def test_losses_equal_those_recorded_before_the_speed_work(runs, algo):
             np.testing.assert_allclose(got, expected, rtol=0, atol=1e-6, err_msg=tag)
         else:
             np.testing.assert_allclose(got, expected, rtol=1e-4, atol=0, err_msg=tag)
+
+
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_evaluation_after_training_logs_each_game(runs, algo):
+    import json
+
+    proc, run_dirs = runs[algo, "Qbert-v5"]
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = json.load(open(os.path.join(run_dirs[0], "eval.json")))
+    assert report["env_id"] == "Qbert-v5" and report["algorithm"] == algo and not report["greedy"]
+    assert len(report["returns"]) == 10 and len(set(report["seeds"])) == 10
+    assert all(length > 50 for length in report["lengths"])  # full games of several lives
+    assert report["mean"] == pytest.approx(np.mean(report["returns"]))
+    assert report["std_err"] == pytest.approx(np.std(report["returns"]) / np.sqrt(10))
+    logged = scalars(load_events(run_dirs[0]), "eval/episodic_return")
+    assert [s for s, _ in logged] == list(range(10))
+    np.testing.assert_allclose([v for _, v in logged], report["returns"])
+
+
+def evaluate_cli(*flags, cwd=None):
+    script = os.path.join(ROOT, "benchmark", "evaluate.py")
+    return subprocess.run([sys.executable, script, *flags], cwd=cwd, capture_output=True, text=True, timeout=600)
+
+
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_evaluate_script_plays_a_saved_model(runs, algo, tmp_path):
+    _, run_dirs = runs[algo, "Breakout-v5"]
+    model = os.path.join(run_dirs[0], f"{algo}_atari_envpool.cleanrl_model")
+    proc = evaluate_cli("--model-path", model, "--episodes", "3", "--seed", "4", "--run-dir", str(tmp_path / "e"))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert f"{algo} on Breakout-v5: 3 games, return " in proc.stdout
+    assert "game 2 (seed 6)" in proc.stdout
+    assert (tmp_path / "e" / "eval.json").is_file()
+    checkpoint = os.path.join(run_dirs[0], "checkpoint.pt")
+    assert evaluate_cli("--model-path", checkpoint, "--episodes", "1", "--greedy").returncode == 0
+
+
+def test_evaluate_script_random_baseline_and_refusals(runs, tmp_path):
+    import importlib.util
+
+    proc = evaluate_cli("--random", "--env-id", "Qbert-v5", "--episodes", "2", "--model-path", "x")
+    assert proc.returncode == 1 and "give either --model-path or --random" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    spec = importlib.util.spec_from_file_location("evaluate", os.path.join(ROOT, "benchmark", "evaluate.py"))
+    evaluate = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(evaluate)
+    report = evaluate.main(evaluate.Args(random=True, env_id="Qbert-v5", episodes=2))
+    assert report["algorithm"] == "random" and len(report["returns"]) == 2
+    not_a_model = tmp_path / "notes.txt"
+    not_a_model.write_text("hello")
+    _, run_dirs = runs["ppo", "Breakout-v5"]
+    model = os.path.join(run_dirs[0], "ppo_atari_envpool.cleanrl_model")
+    for kwargs, message in [
+        ({"model_path": str(not_a_model)}, f"--model-path {not_a_model} is not a model file written by these scripts"),
+        ({"model_path": str(tmp_path / "missing.pt")}, "no such file"),
+        ({"random": True}, "--random needs --env-id"),
+        ({"random": True, "env_id": "CartPole-v1"}, "is not an envpool Atari game"),
+        ({"model_path": model, "env_id": "Qbert-v5"}, "has 4 actions (Breakout-v5) but Qbert-v5 has 6"),
+        ({"model_path": model, "episodes": 0}, "--episodes must be positive"),
+    ]:
+        with pytest.raises(SystemExit) as excinfo:
+            evaluate.main(evaluate.Args(**kwargs))
+        assert message in str(excinfo.value.code), kwargs

@@ -11,6 +11,7 @@ import pytest
 import torch
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
+import p3o_atari_envpool as p3o
 import ppo_atari_envpool as ppo
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -129,46 +130,58 @@ def test_restore_gives_back_model_optimizer_lr_and_rng_states(module, stopped_ru
     assert (np.random.rand(), torch.rand(1).item()) == draws
 
 
-def test_changed_arguments_are_refused(stopped_run):
+def args_for(module, **overrides):
+    """The Args of FLAGS, for calling a script's main in-process (the refusals come before any env)."""
+    flags = dict(zip(FLAGS[::2], FLAGS[1::2], strict=True))
+    kwargs = {flag[2:].replace("-", "_"): value for flag, value in flags.items()}
+    defaults = module.Args()
+    kwargs = {k: type(getattr(defaults, k))(v) for k, v in kwargs.items()}
+    return module.Args(**(kwargs | overrides))
+
+
+def refusal(module, cwd, monkeypatch, **overrides):
+    monkeypatch.chdir(cwd)
+    with pytest.raises(SystemExit) as excinfo:
+        module.main(args_for(module, **overrides))
+    return str(excinfo.value.code)
+
+
+def test_changed_arguments_are_refused(stopped_run, monkeypatch):
     cwd, run_dir = stopped_run
-    flags = list(FLAGS)
-    flags[flags.index("--num-envs") + 1] = "8"
-    script = os.path.join(ROOT, "ppo_atari_envpool.py")
-    proc = subprocess.run(
-        [sys.executable, script, *flags, "--resume", run_dir], cwd=cwd, capture_output=True, text=True, timeout=300
-    )
-    assert proc.returncode != 0
-    assert f"--resume {run_dir}/checkpoint.pt was started with --num-envs 4 (now 8)" in proc.stderr
-    assert "Traceback" not in proc.stderr
-    other = run("p3o", cwd, "--resume", run_dir)
-    assert other.returncode != 0
-    assert "is a ppo checkpoint; resume it with ppo_atari_envpool.py" in other.stderr
+    message = refusal(ppo, cwd, monkeypatch, num_envs=8, resume=run_dir)
+    assert f"--resume {run_dir}/checkpoint.pt was started with --num-envs 4 (now 8)" in message
+    message = refusal(ppo, cwd, monkeypatch, learning_rate=3e-4, seed=6, resume=run_dir)
+    assert "--seed 5 (now 6), --learning-rate 0.001 (now 0.0003)" in message
+    assert "is a ppo checkpoint; resume it with ppo_atari_envpool.py" in refusal(p3o, cwd, monkeypatch, resume=run_dir)
 
 
 @pytest.mark.parametrize("damage", ["truncated", "garbage", "empty"])
-def test_damaged_checkpoints_are_refused_by_name(damage, stopped_run, tmp_path):
+def test_damaged_checkpoints_are_refused_by_name(damage, stopped_run, tmp_path, monkeypatch):
     _, run_dir = stopped_run
     data = open(os.path.join(run_dir, "checkpoint.pt"), "rb").read()
     bad = tmp_path / "checkpoint.pt"
     bad.write_bytes({"truncated": data[: len(data) // 2], "garbage": b"not a checkpoint" * 100, "empty": b""}[damage])
-    proc = run("ppo", tmp_path, "--resume", str(bad))
-    assert proc.returncode != 0
-    assert f"--resume {bad} is not a readable checkpoint; it may be truncated or corrupt" in proc.stderr
-    assert "Traceback" not in proc.stderr
+    message = refusal(ppo, tmp_path, monkeypatch, resume=str(bad))
+    assert message.startswith(f"error: --resume {bad} is not a readable checkpoint; it may be truncated or corrupt")
 
 
-def test_a_run_name_in_use_is_not_overwritten(stopped_run):
+def test_a_run_name_in_use_is_not_overwritten(stopped_run, monkeypatch):
+    cwd, _ = stopped_run
+    message = refusal(ppo, cwd, monkeypatch, run_name="s")
+    assert "runs/s already holds a run; continue it with --resume runs/s" in message
+
+
+def test_auto_resume_needs_a_run_name(tmp_path, monkeypatch):
+    assert "--auto-resume needs --run-name" in refusal(ppo, tmp_path, monkeypatch, auto_resume=True)
+
+
+def test_resume_of_a_missing_checkpoint_is_refused(tmp_path, monkeypatch):
+    message = refusal(p3o, tmp_path, monkeypatch, resume="runs/nothing-here")
+    assert "--resume runs/nothing-here: there is no checkpoint there." in message
+
+
+def test_refusals_on_the_command_line_exit_nonzero_without_traceback(stopped_run):
     cwd, run_dir = stopped_run
-    proc = run("ppo", cwd, "--run-name", "s")
-    assert proc.returncode != 0
-    assert "runs/s already holds a run; continue it with --resume runs/s" in proc.stderr
-
-
-def test_auto_resume_needs_a_run_name(tmp_path):
-    proc = run("ppo", tmp_path, "--auto-resume")
-    assert proc.returncode != 0 and "--auto-resume needs --run-name" in proc.stderr
-
-
-def test_resume_of_a_missing_checkpoint_is_refused(tmp_path):
-    proc = run("p3o", tmp_path, "--resume", "runs/nothing-here")
-    assert proc.returncode != 0 and "--resume runs/nothing-here: there is no checkpoint there." in proc.stderr
+    proc = run("p3o", cwd, "--resume", run_dir)
+    assert proc.returncode == 1
+    assert "is a ppo checkpoint" in proc.stderr and "Traceback" not in proc.stderr

@@ -1,0 +1,81 @@
+"""benchmark/p3o_vs_ppo.sh: the thesis grid as a dry run, and a tiny grid run locally end to end."""
+
+import os
+import re
+import subprocess
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SWEEP = os.path.join(ROOT, "benchmark", "p3o_vs_ppo.sh")
+THESIS_GAMES = ["Breakout-v5", "Freeway-v5", "Seaquest-v5", "Riverraid-v5", "Qbert-v5", "MsPacman-v5"]
+
+
+def sweep(env, cwd):
+    keep = {k: v for k, v in os.environ.items() if k not in ("GAMES", "SEEDS", "EXTRA_ARGS", "SLURM", "DRY_RUN")}
+    return subprocess.run(["bash", SWEEP], env=keep | env, cwd=cwd, capture_output=True, text=True, timeout=900)
+
+
+def test_dry_run_lists_the_thesis_grid_with_the_thesis_alphas(tmp_path):
+    proc = sweep({"DRY_RUN": "1"}, tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.strip().splitlines()
+    assert len(lines) == 6 * 10 * 2
+    seen = set()
+    for line in lines:
+        game = re.search(r"--env-id (\S+)", line).group(1)
+        seed = int(re.search(r"--seed (\d+)", line).group(1))
+        algo = re.search(r"(ppo|p3o)_atari_envpool\.py", line).group(1)
+        assert "--total-timesteps 20000000" in line and "--auto-resume" in line
+        assert f"--run-name p3o_vs_ppo/{game}__{algo}_atari_envpool__{seed} " in line + " "
+        alpha = re.search(r"--ewma-alpha (\S+)", line)
+        if algo == "ppo":
+            assert alpha is None
+        else:
+            assert alpha.group(1) == {"MsPacman-v5": "0.75", "Riverraid-v5": "0.6"}.get(game, "0.9")
+        seen.add((game, seed, algo))
+    assert seen == {(g, s, a) for g in THESIS_GAMES for s in range(1, 11) for a in ("ppo", "p3o")}
+    assert not (tmp_path / "runs").exists()
+
+
+def test_dry_run_slurm_prints_one_requeueing_job_array(tmp_path):
+    proc = sweep({"DRY_RUN": "1", "SLURM": "1", "WORKERS": "4"}, tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "#SBATCH --array=0-119%4" in proc.stdout
+    assert "#SBATCH --requeue" in proc.stdout
+    assert "#SBATCH --signal=B:TERM@" in proc.stdout
+    assert "scontrol requeue" in proc.stdout
+
+
+def test_knobs_override_the_grid(tmp_path):
+    env = {"DRY_RUN": "1", "GAMES": "Pong-v5", "SEEDS": "7 8", "TOTAL_TIMESTEPS": "1000", "EXTRA_ARGS": "--num-envs 8"}
+    lines = sweep(env, tmp_path).stdout.strip().splitlines()
+    assert len(lines) == 4
+    assert all("--env-id Pong-v5" in x and "--total-timesteps 1000" in x and x.endswith("--num-envs 8") for x in lines)
+
+
+def test_local_mode_runs_a_tiny_grid_and_skips_it_when_run_again(tmp_path):
+    tiny = "--num-envs 4 --num-steps 32 --num-minibatches 2 --update-epochs 1 --eval-episodes 1"
+    env = {
+        "GAMES": "Breakout-v5 Qbert-v5",
+        "SEEDS": "1",
+        "TOTAL_TIMESTEPS": "256",
+        "EXTRA_ARGS": tiny,
+        "WORKERS": "2",
+        "GROUP": "tiny",
+        "PYTHON": sys.executable,
+    }
+    proc = sweep(env, tmp_path)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    for game in ("Breakout-v5", "Qbert-v5"):
+        for algo in ("ppo", "p3o"):
+            name = f"{game}__{algo}_atari_envpool__1"
+            run_dir = tmp_path / "runs" / "tiny" / name
+            assert (run_dir / "checkpoint.pt").is_file()
+            assert (run_dir / "eval.json").is_file()
+            log = (tmp_path / "runs" / "tiny" / "logs" / f"{name}.log").read_text()
+            assert "iteration 2/2 global_step=256" in log
+    again = sweep(env, tmp_path)
+    assert again.returncode == 0
+    log = (tmp_path / "runs" / "tiny" / "logs" / "Qbert-v5__p3o_atari_envpool__1.log").read_text()
+    assert "already finished (256 steps); nothing to do." in log
+    assert log.count("iteration 2/2") == 1
