@@ -342,10 +342,9 @@ def state_importance(probs, values):
     return probs.var(dim=-1, unbiased=False) * values.abs()
 
 
-def compute_betas(si, alpha):
-    """beta(s) from state importance si [T+1, N] (thesis section 4.1.1): per environment, an EWMA over
-    time (eq. 4.2, x_0 = si_0, x_t = alpha * si_t + (1 - alpha) * x_{t-1}), then min-max over the
-    T+1 states of the rollout. An environment whose smoothed SI is constant gets beta = 0."""
+def ewma(si, alpha):
+    """The EWMA over time of state importance si [T+1, N], per environment (thesis eq. 4.2):
+    x_0 = si_0, x_t = alpha * si_t + (1 - alpha) * x_{t-1}."""
     steps = si.shape[0]
     t = torch.arange(steps, device=si.device)
     # x_t = si_0 + sum_{k=1..t} alpha (1 - alpha)^(t - k) (si_k - si_0): the EWMA unrolled, as one
@@ -353,7 +352,14 @@ def compute_betas(si, alpha):
     lag = (t[:, None] - t[None, :]).to(si.dtype)
     weights = torch.where(lag >= 0, alpha * (1 - alpha) ** lag.clamp(min=0), 0.0)
     weights[:, 0] = 0.0
-    x = si[0] + weights @ (si - si[0])
+    return si[0] + weights @ (si - si[0])
+
+
+def compute_betas(si, alpha):
+    """beta(s) from state importance si [T+1, N] (thesis section 4.1.1): per environment, the EWMA over
+    time (eq. 4.2), then min-max over the T+1 states of the rollout. An environment whose smoothed SI
+    is constant gets beta = 0."""
+    x = ewma(si, alpha)
     low, high = x.min(dim=0).values, x.max(dim=0).values
     span = high - low
     betas = torch.where(span > 0, (x - low) / torch.where(span > 0, span, 1.0), 0.0)

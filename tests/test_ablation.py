@@ -1,0 +1,79 @@
+"""benchmark/p3o_ablation.py: each change replaces exactly the piece it names, and a short run trains."""
+
+import glob
+import importlib.util
+import os
+
+import pytest
+import torch
+
+import p3o_atari_envpool as p3o
+import ppo_atari_envpool as ppo
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+@pytest.fixture
+def ablation(monkeypatch):
+    """The tool, with P3O's module functions restored after each test."""
+    for name in ("gbae", "value_loss", "compute_betas"):
+        monkeypatch.setattr(p3o, name, getattr(p3o, name))
+    spec = importlib.util.spec_from_file_location("p3o_ablation", os.path.join(ROOT, "benchmark", "p3o_ablation.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def rollout(T=16, N=3, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    rewards = (torch.rand(T, N, generator=g) < 0.2).float()
+    values = torch.randn(T, N, generator=g)
+    dones = (torch.rand(T, N, generator=g) < 0.1).float()
+    betas = torch.rand(T, N, generator=g)
+    return rewards, values, dones, torch.randn(N, generator=g), torch.zeros(N), betas, torch.rand(N, generator=g)
+
+
+def test_gae_change_gives_plain_gae_whatever_beta(ablation):
+    r, v, d, nv, nd, b, nb = rollout()
+    expected = ppo.gae(r, v, d, nv, nd, 0.99, 0.95)
+    assert not torch.allclose(p3o.gbae(r, v, d, nv, nd, b, nb, 0.99, 0.95), expected)  # these betas matter
+    ablation.apply("gae")
+    torch.testing.assert_close(p3o.gbae(r, v, d, nv, nd, b, nb, 0.99, 0.95), expected, rtol=0, atol=0)
+
+
+def test_value_beta_one_weights_every_state_fully(ablation):
+    newvalue, values, returns = torch.randn(64), torch.randn(64), torch.randn(64)
+    betas, valid = torch.rand(64), (torch.rand(64) < 0.9).float()
+    full = p3o.value_loss(newvalue, values, returns, torch.ones(64), valid, 0.1, True)
+    weighted = p3o.value_loss(newvalue, values, returns, betas, valid, 0.1, True)
+    assert weighted < full
+    ablation.apply("value-beta-one")
+    assert p3o.value_loss(newvalue, values, returns, betas, valid, 0.1, True).item() == full.item()
+
+
+def test_batch_minmax_normalises_over_the_whole_rollout(ablation):
+    g = torch.Generator().manual_seed(1)
+    si = torch.rand(9, 4, generator=g) * torch.tensor([1.0, 10.0, 100.0, 1000.0])
+    ablation.apply("batch-minmax")
+    betas = p3o.compute_betas(si, 0.9)
+    x = p3o.ewma(si, 0.9)
+    torch.testing.assert_close(betas, (x - x.min()) / (x.max() - x.min()))
+    assert betas.min().item() == 0.0 and betas.max().item() == 1.0
+    # the small-scale environment keeps small betas, unlike per-environment min-max
+    assert betas[:, 0].max() < 0.01
+    assert torch.equal(p3o.compute_betas(torch.full((5, 2), 0.3), 0.9), torch.zeros(5, 2))
+
+
+def test_unknown_change_is_refused(ablation):
+    with pytest.raises(SystemExit, match="first argument must be one of gae, value-beta-one, batch-minmax"):
+        ablation.main(["beta-zero", "--env-id", "Breakout-v5"])
+
+
+def test_a_short_ablation_run_trains_and_is_named_apart(ablation, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    tiny = ["--env-id", "Breakout-v5", "--num-envs", "2", "--num-steps", "32", "--num-minibatches", "2"]
+    tiny += ["--update-epochs", "1", "--total-timesteps", "128", "--eval-episodes", "0", "--seed", "5"]
+    ablation.main(["batch-minmax", *tiny])
+    (run,) = glob.glob(str(tmp_path / "runs" / "Breakout-v5__p3o_batch_minmax__5__*"))
+    assert os.path.isfile(os.path.join(run, "checkpoint.pt"))
+    assert glob.glob(os.path.join(run, "events.out.tfevents.*"))
