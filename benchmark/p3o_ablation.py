@@ -1,9 +1,10 @@
-"""P3O with one of its pieces switched off or changed: the diagnostic runs behind "Does it learn?" in
+r"""P3O with one of its pieces switched off or changed: the diagnostic runs behind "Does it learn?" in
 benchmark/README.md. Not a second P3O: p3o_atari_envpool.py's own `main`, with one of its module
 functions replaced before training starts. The first argument names the change; the rest are
 p3o_atari_envpool.py's flags.
 
-    uv run python benchmark/p3o_ablation.py gae --env-id Breakout-v5 --num-envs 8 --num-steps 128 ...
+    uv run python benchmark/p3o_ablation.py gae --env-id Breakout-v5 --num-envs 8 --num-steps 128 \
+        --num-minibatches 4 --update-epochs 4 --learning-rate 2.5e-4 --total-timesteps 250880
 
 Changes:
   gae             advantages by plain GAE (beta = 0 in GBAE); the beta-weighted value loss kept
