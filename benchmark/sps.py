@@ -48,6 +48,9 @@ class Args:
     """train on the GPU when there is one"""
     scripts: tuple[str, ...] = ("ppo", "p3o")
     """which scripts to measure"""
+    rounds: int = 1
+    """measure each script this many times, the order reversed every other round (so a machine that drifts
+    does not favour the script measured first); medians over the rounds"""
     out: str = "benchmark/sps.json"
     """where the JSON results go"""
 
@@ -68,7 +71,7 @@ def _measure_script(name: str, settings: dict, warmup: int, iterations: int, cud
 
     module = _load(name)
     batch = settings["num_envs"] * settings["num_steps"]
-    args = module.Args(**settings, total_timesteps=batch * (warmup + iterations), cuda=cuda, seed=1)
+    args = module.Args(**settings, total_timesteps=batch * (warmup + iterations), cuda=cuda, seed=1, eval_episodes=0)
     with tempfile.TemporaryDirectory() as tmp, open(os.devnull, "w") as devnull:
         os.chdir(tmp)  # the run's event file goes to a throw-away folder
         with contextlib.redirect_stdout(devnull):
@@ -98,6 +101,10 @@ def _measure_raw_env(settings: dict, warmup: int, iterations: int, queue) -> Non
     queue.put({"rollout_sps": statistics.median(rates[warmup:]), "peak_rss_mb": _peak_rss_mb()})
 
 
+def _median(values):
+    return None if values[0] is None else statistics.median(values)
+
+
 def _in_child(target, *args):
     ctx = mp.get_context("spawn")
     queue = ctx.Queue()
@@ -111,8 +118,8 @@ def _in_child(target, *args):
 def main(args: Args) -> dict:
     if args.thesis:
         args.num_envs, args.num_steps, args.num_minibatches, args.update_epochs = 256, 256, 8, 8
-    if args.iterations < 1 or args.warmup < 0:
-        sys.exit("error: --iterations must be at least 1 and --warmup at least 0.")
+    if args.iterations < 1 or args.warmup < 0 or args.rounds < 1:
+        sys.exit("error: --iterations and --rounds must be at least 1 and --warmup at least 0.")
     unknown = set(args.scripts) - set(SCRIPTS)
     if unknown:
         sys.exit(f"error: unknown script(s) {sorted(unknown)}; choose from {sorted(SCRIPTS)}.")
@@ -130,13 +137,19 @@ def main(args: Args) -> dict:
     device = torch.cuda.get_device_name(0) if args.cuda and torch.cuda.is_available() else platform.processor()
     print(
         f"{args.env_id}: {args.num_envs} envs x {args.num_steps} steps, {args.update_epochs} epochs x "
-        f"{args.num_minibatches} minibatches; {args.warmup} warm-up + {args.iterations} measured iterations; "
+        f"{args.num_minibatches} minibatches; {args.warmup} warm-up + {args.iterations} measured iterations, "
+        f"{args.rounds} round(s); "
         f"{device or 'CPU'}, {os.cpu_count()} CPU cores, torch {torch.__version__}",
         flush=True,
     )
     results = {"raw_env": _in_child(_measure_raw_env, settings, args.warmup, args.iterations)}
-    for name in args.scripts:
-        results[name] = _in_child(_measure_script, name, settings, args.warmup, args.iterations, args.cuda)
+    rounds = {name: [] for name in args.scripts}
+    for r in range(args.rounds):
+        for name in args.scripts if r % 2 == 0 else reversed(args.scripts):
+            rounds[name].append(_in_child(_measure_script, name, settings, args.warmup, args.iterations, args.cuda))
+    for name, measured in rounds.items():
+        results[name] = {key: _median([m[key] for m in measured]) for key in measured[0]}
+        results[name]["rounds"] = measured
 
     raw = results["raw_env"]["rollout_sps"]
     print("\n| what | iteration steps/s | rollout steps/s | update steps/s | peak RSS MB | peak GPU MB |")

@@ -1,0 +1,41 @@
+"""benchmark/sps.py runs from the command line at tiny sizes and reports what it promises."""
+
+import json
+import os
+import subprocess
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SPS = os.path.join(ROOT, "benchmark", "sps.py")
+
+
+def test_sps_measures_both_scripts_over_alternating_rounds(tmp_path):
+    out = tmp_path / "sps.json"
+    cmd = [sys.executable, SPS, "--num-envs", "2", "--num-steps", "16", "--num-minibatches", "2"]
+    cmd += ["--update-epochs", "1", "--iterations", "2", "--warmup", "1", "--rounds", "2", "--no-cuda"]
+    proc = subprocess.run([*cmd, "--out", str(out)], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "| ppo_atari_envpool.py |" in proc.stdout and "| p3o_atari_envpool.py |" in proc.stdout
+    report = json.loads(out.read_text())
+    results = report["results"]
+    assert results["raw_env"]["rollout_sps"] > 0 and results["raw_env"]["peak_rss_mb"] > 0
+    for name in ("ppo", "p3o"):
+        r = results[name]
+        assert len(r["rounds"]) == 2
+        for key in ("iteration_sps", "rollout_sps", "update_sps", "peak_rss_mb"):
+            assert r[key] > 0
+            # the reported value is the median over the rounds (of two: their mean)
+            assert abs(r[key] - sum(m[key] for m in r["rounds"]) / 2) < 1e-6 * r[key]
+        # a whole iteration is the rollout plus the update, so it is slower than either part
+        assert r["iteration_sps"] < min(r["rollout_sps"], r["update_sps"])
+    ratios = report["ratios"]
+    expected = results["p3o"]["iteration_sps"] / results["ppo"]["iteration_sps"]
+    assert abs(ratios["p3o/ppo_iteration"] - expected) < 1e-9
+
+
+def test_sps_refuses_bad_settings(tmp_path):
+    for bad in (["--rounds", "0"], ["--scripts", "a2c"], ["--num-envs", "3", "--num-minibatches", "5"]):
+        proc = subprocess.run([sys.executable, SPS, *bad], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+        assert proc.returncode != 0
+        assert "error" in (proc.stdout + proc.stderr).lower()
+        assert "Traceback" not in proc.stderr
