@@ -1,32 +1,77 @@
 #!/usr/bin/env bash
-# Does it learn? Both scripts on Breakout-v5 on the CPU at CleanRL's Atari sizes (8 envs x 128 steps,
-# 4 minibatches x 4 epochs, learning rate 2.5e-4, everything else the scripts' defaults), 1M steps,
-# seed 1, each evaluated on 10 full games at the end; a random policy measured by the same evaluation;
-# then benchmark/results.py on those runs. Runs one script after the other and resumes where a
-# previous call stopped (checkpoints). A benchmark, not a test: about 1.5 hours on 2 cores.
+# Does it learn? Both scripts on Breakout-v5 on the CPU, 1M steps per seed, each evaluated on 10 full
+# games at the end, a random policy measured by the same evaluation, then benchmark/results.py over every
+# run committed under benchmark/results/<group>/runs/. A benchmark, not a test.
 #
-#   bash benchmark/learning_check.sh            # TOTAL_TIMESTEPS=... and SEED=... override
+# MODE=thesis (default): the thesis's update regime (table 5.2: 256 steps per rollout, 8 epochs, learning
+#   rate 1e-3, not annealed, as in the first million steps of its 20M-step runs) with the environments
+#   scaled from 256 to 16 and the minibatches from 8 to 4 so that it fits 2 CPU cores.
+# MODE=cleanrl: CleanRL's Atari sizes (8 envs x 128 steps, 4 x 4, learning rate 2.5e-4, annealed), where
+#   P3O as specified does not learn (benchmark/README.md, "Does it learn?").
+#
+# The two scripts of a seed run side by side, one core each (OMP_NUM_THREADS=1), about 1.5 hours a seed on
+# 2 cores. Calling it again skips finished runs and resumes unfinished ones from their checkpoints.
+#
+#   bash benchmark/learning_check.sh                          # seeds 1 2 3, thesis regime
+#   SEEDS="4 5" bash benchmark/learning_check.sh              # more seeds
+#   MODE=cleanrl SEEDS=1 bash benchmark/learning_check.sh     # the CleanRL-size check
+# Knobs: MODE, SEEDS, TOTAL_TIMESTEPS (1000000).
 set -euo pipefail
 
 main() {
     cd "$(dirname "$0")/.."
-    local steps=${TOTAL_TIMESTEPS:-1000000} seed=${SEED:-1}
-    local group=learning_check out=benchmark/results/learning_check
-    local sizes=(--num-envs 8 --num-steps 128 --num-minibatches 4 --update-epochs 4 --learning-rate 2.5e-4)
-    for algo in ppo p3o; do
-        local name="$group/Breakout-v5__${algo}_atari_envpool__$seed"
-        local start=(--run-name "$name")
-        if [ -f "runs/$name/checkpoint.pt" ]; then start=(--resume "runs/$name"); fi
-        uv run python "${algo}_atari_envpool.py" --env-id Breakout-v5 --seed "$seed" "${sizes[@]}" \
-            --total-timesteps "$steps" --eval-episodes 10 "${start[@]}"
+    local mode=${MODE:-thesis} steps=${TOTAL_TIMESTEPS:-1000000} seeds=${SEEDS:-1 2 3}
+    local group sizes
+    case "$mode" in
+        thesis)
+            group=learning_check
+            sizes=(--num-envs 16 --num-steps 256 --num-minibatches 4 --update-epochs 8 --learning-rate 1e-3
+                --no-anneal-lr) ;;
+        cleanrl)
+            group=learning_check_cleanrl
+            sizes=(--num-envs 8 --num-steps 128 --num-minibatches 4 --update-epochs 4 --learning-rate 2.5e-4) ;;
+        *)
+            echo "error: MODE must be thesis or cleanrl, got '$mode'." >&2
+            exit 1 ;;
+    esac
+    local out=benchmark/results/$group logs=runs/$group/logs
+    mkdir -p "$logs" "$out/runs"
+    for seed in $seeds; do
+        local pids=() algo
+        for algo in ppo p3o; do
+            local name="$group/Breakout-v5__${algo}_atari_envpool__$seed"
+            echo "seed $seed: $algo -> runs/$name (log $logs/${algo}_$seed.log)"
+            OMP_NUM_THREADS=1 uv run python "${algo}_atari_envpool.py" --env-id Breakout-v5 --seed "$seed" \
+                "${sizes[@]}" --total-timesteps "$steps" --eval-episodes 10 --run-name "$name" --auto-resume \
+                >>"$logs/${algo}_$seed.log" 2>&1 &
+            pids+=($!)
+        done
+        local failed=0 pid
+        for pid in "${pids[@]}"; do wait "$pid" || failed=1; done
+        if [ "$failed" = 1 ]; then
+            echo "error: a run of seed $seed failed; see $logs/ (calling this again resumes it)." >&2
+            exit 1
+        fi
+        local random_dir="runs/$group/Breakout-v5__random__$seed"
+        if [ ! -f "$random_dir/eval.json" ]; then
+            uv run python benchmark/evaluate.py --random --env-id Breakout-v5 --episodes 10 \
+                --seed "$((seed + 1000000))" --run-dir "$random_dir"
+        fi
+        # the small outputs (event files, eval.json, logs) are committed; checkpoints stay in runs/
+        for algo in ppo p3o random; do
+            local run="Breakout-v5__${algo}_atari_envpool__$seed"
+            [ "$algo" = random ] && run="Breakout-v5__random__$seed"
+            rm -rf "${out:?}/runs/$run"
+            mkdir -p "$out/runs/$run"
+            cp "runs/$group/$run"/events.out.tfevents.* "runs/$group/$run/eval.json" "$out/runs/$run/"
+            [ "$algo" = random ] || cp "$logs/${algo}_$seed.log" "$out/runs/$run/train.log"
+        done
     done
-    uv run python benchmark/evaluate.py --random --env-id Breakout-v5 --episodes 10 --seed "$seed" \
-        --run-dir "runs/$group/Breakout-v5__random__$seed"
-    uv run python benchmark/results.py "runs/$group" --out "$out"
-    uv run python benchmark/results.py "runs/$group" --out "$out" --tag charts/episodic_return --last 100 \
+    uv run python benchmark/results.py "$out/runs" --out "$out"
+    uv run python benchmark/results.py "$out/runs" --out "$out" --tag charts/episodic_return --last 100 \
         --table-name train_last100 --no-figures
-    echo "table: $out/table.md (10-game evaluation), $out/train_last100.md (last 100 training games)"
-    echo "figures: $out/*.png"
+    echo "tables: $out/table.md (10-game evaluation), $out/train_last100.md (last 100 training games)"
+    echo "figures: $out/*.png; runs: $out/runs/"
 }
 
 main "$@"
