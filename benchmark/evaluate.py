@@ -1,21 +1,19 @@
 """Evaluate a saved model (of either training script) or a random policy, without training.
 
-The same evaluation the training scripts run after training (`--eval-episodes`): K full games (all
-lives), game i in its own environment seeded `seed + i`, actions sampled from the policy (`--greedy`
-for the most probable action). Prints each game's return and the mean ± standard error.
+The training scripts' own evaluation (`--eval-episodes`): K full games (all lives), game i in its own
+environment seeded `seed + i`, actions sampled from the policy (`--greedy` for the most probable action).
+Prints each game's return and the mean ± standard error.
 
     uv run python benchmark/evaluate.py --model-path runs/RUN/p3o_atari_envpool.cleanrl_model --episodes 10
     uv run python benchmark/evaluate.py --random --env-id Breakout-v5 --episodes 10
 """
 
-import importlib.util
+import importlib
 import os
 import sys
 from dataclasses import dataclass
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-AGENT_FORMAT = "p3o-atari-agent/1"
-CHECKPOINT_FORMAT = "p3o-atari-checkpoint/1"
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # the training scripts
 
 
 @dataclass
@@ -39,16 +37,12 @@ class Args:
 
 
 def load_script(algorithm: str):
-    """The training script whose network and evaluation this uses (`ppo` or `p3o`)."""
-    path = os.path.join(ROOT, f"{algorithm}_atari_envpool.py")
-    spec = importlib.util.spec_from_file_location(f"{algorithm}_atari_envpool", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    """The training script (`ppo` or `p3o`) whose network and evaluation this uses."""
+    return importlib.import_module(f"{algorithm}_atari_envpool")
 
 
-def load_model(path: str) -> dict:
-    """Read a model file, refusing with one clear sentence anything the training scripts did not write."""
+def load_model(path: str, script) -> dict:
+    """Read a model file or checkpoint, refusing with one clear sentence anything the scripts did not write."""
     import torch
 
     if not os.path.isfile(path):
@@ -57,35 +51,29 @@ def load_model(path: str) -> dict:
         saved = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:
         sys.exit(f"error: --model-path {path} is not a model file written by these scripts ({type(e).__name__}).")
-    if not isinstance(saved, dict) or saved.get("algorithm") not in ("ppo", "p3o"):
-        sys.exit(f"error: --model-path {path} is not a model file written by these scripts.")
-    if saved.get("format") == CHECKPOINT_FORMAT:  # a training checkpoint holds the same agent
-        weights = saved["model_state_dict"]
-        saved = {"env_id": saved["args"]["env_id"], "num_actions": int(weights["actor.weight"].shape[0])} | saved
-    elif saved.get("format") != AGENT_FORMAT:
+    if (
+        not isinstance(saved, dict)
+        or saved.get("format") != script.FORMAT
+        or saved.get("algorithm") not in ("ppo", "p3o")
+    ):
         sys.exit(f"error: --model-path {path} is not a model file written by these scripts.")
     return saved
 
 
 def main(args: Args) -> dict:
-    import envpool
     import torch
 
     if args.episodes <= 0:
         sys.exit(f"error: --episodes must be positive, got {args.episodes}.")
     if args.random == (args.model_path is not None):
         sys.exit("error: give either --model-path or --random.")
-    if args.random:
-        if args.env_id is None:
-            sys.exit("error: --random needs --env-id.")
-        saved, algorithm, env_id = None, "random", args.env_id
-    else:
-        saved = load_model(args.model_path)
-        algorithm, env_id = saved["algorithm"], args.env_id or saved["env_id"]
+    if args.random and args.env_id is None:
+        sys.exit("error: --random needs --env-id.")
+    saved = None if args.random else load_model(args.model_path, load_script("ppo"))
     script = load_script("ppo" if saved is None else saved["algorithm"])
-    if env_id not in script.atari_env_ids():
-        sys.exit(f"error: --env-id {env_id} is not an envpool Atari game.")
-    num_actions = int(envpool.make_spec(env_id).action_space.n)
+    env_id = args.env_id or saved["args"]["env_id"]
+    script.check_args(script.Args(env_id=env_id))  # the scripts' refusal of a game that is not envpool Atari
+    num_actions = int(script.envpool.make_spec(env_id).action_space.n)
     agent = script.Agent(num_actions)
     if saved is None:
         # the random policy: the same network and evaluation with a zeroed policy head, so every action
@@ -93,19 +81,18 @@ def main(args: Args) -> dict:
         torch.nn.init.zeros_(agent.actor.weight)
         torch.nn.init.zeros_(agent.actor.bias)
     else:
-        if saved["num_actions"] != num_actions:
+        trained_on, weights = saved["args"]["env_id"], saved["model_state_dict"]
+        if weights["actor.weight"].shape[0] != num_actions:
             sys.exit(
-                f"error: the model in {args.model_path} has {saved['num_actions']} actions "
-                f"({saved['env_id']}) but {env_id} has {num_actions}."
+                f"error: the model in {args.model_path} has {weights['actor.weight'].shape[0]} actions "
+                f"({trained_on}) but {env_id} has {num_actions}."
             )
-        try:
-            agent.load_state_dict(saved["model_state_dict"])
-        except RuntimeError as e:
-            sys.exit(f"error: the weights in {args.model_path} do not fit the Nature CNN ({str(e).splitlines()[0]}).")
+        agent.load_state_dict(weights)
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
     agent = agent.to(device)
 
     report = script.evaluate(agent, env_id, args.episodes, args.seed, args.greedy, device)
+    algorithm = "random" if saved is None else saved["algorithm"]
     report |= {"algorithm": algorithm, "model_path": args.model_path}
     for game, (ret, length) in enumerate(zip(report["returns"], report["lengths"], strict=True)):
         print(f"game {game} (seed {report['seeds'][game]}): return {ret:.1f}, {length} steps")
@@ -115,6 +102,11 @@ def main(args: Args) -> dict:
 
         os.makedirs(args.run_dir, exist_ok=True)
         writer = SummaryWriter(args.run_dir)
+        # the run's identity, as the training scripts log it, for benchmark/results.py
+        exp_name = "random" if saved is None else saved["args"]["exp_name"]
+        writer.add_text(
+            "hyperparameters", f"|param|value|\n|-|-|\n|exp_name|{exp_name}|\n|env_id|{env_id}|\n|seed|{args.seed}|"
+        )
         script.write_evaluation(report, args.run_dir, writer)
         writer.close()
         print(f"wrote {os.path.join(args.run_dir, 'eval.json')}")

@@ -31,28 +31,29 @@ def batch_minmax_betas(si, alpha):
 
     x = p3o.ewma(si, alpha)
     span = x.max() - x.min()
-    if span <= 0:
-        return torch.zeros_like(x)
-    return ((x - x.min()) / span).clamp(0.0, 1.0).nan_to_num(0.0)
+    return torch.zeros_like(x) if span <= 0 else (x - x.min()) / span
 
 
 def apply(change: str) -> None:
-    """Replace the P3O function that `change` names; `main` looks them up when it calls them."""
+    """Replace the P3O function that `change` names. Refuses, rather than silently training plain P3O, when
+    p3o_atari_envpool.main no longer calls a module function of that name."""
     import torch
 
-    gbae, value_loss = p3o.gbae, p3o.value_loss
-    if change == "gae":
-        p3o.gbae = lambda rewards, values, dones, next_value, next_done, betas, next_beta, *rest: gbae(
-            rewards, values, dones, next_value, next_done, torch.zeros_like(betas), torch.zeros_like(next_beta), *rest
-        )
-    elif change == "value-beta-one":
-        p3o.value_loss = lambda newvalue, values, returns, betas, valid, clip_coef, clip_vloss: value_loss(
-            newvalue, values, returns, torch.ones_like(betas), valid, clip_coef, clip_vloss
-        )
-    elif change == "batch-minmax":
-        p3o.compute_betas = batch_minmax_betas
-    else:
-        raise ValueError(change)
+    name = {"gae": "gbae", "value-beta-one": "value_loss", "batch-minmax": "compute_betas"}[change]
+    if not hasattr(p3o, name) or name not in p3o.main.__code__.co_names:
+        sys.exit(f"error: p3o_atari_envpool.main does not call {name}, so the {change} ablation would change nothing.")
+    original = getattr(p3o, name)
+
+    def gbae_with_beta_zero(rewards, values, dones, next_value, next_done, betas, *rest):
+        return original(rewards, values, dones, next_value, next_done, torch.zeros_like(betas), *rest)
+
+    def value_loss_with_beta_one(newvalue, values, returns, betas, *rest):
+        return original(newvalue, values, returns, torch.ones_like(betas), *rest)
+
+    replacement = {"gae": gbae_with_beta_zero, "value-beta-one": value_loss_with_beta_one}.get(
+        change, batch_minmax_betas
+    )
+    setattr(p3o, name, replacement)
 
 
 def main(argv: list[str]) -> None:

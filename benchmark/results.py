@@ -5,10 +5,10 @@ comparison across games (interquartile mean of human-normalised scores, rliable'
     uv run python benchmark/results.py runs/ --out results/ --tag charts/episodic_return --last 100 \
         --table-name train_last100 --no-figures
 
-Runs are folders holding `events.out.tfevents.*` files, named as CleanRL names them,
-`{env_id}__{exp_name}__{seed}__...`, and grouped by env id and exp name (`--group-regex` with named
-groups `env` and `algo` overrides that). Runs with unreadable files, no events or a missing tag are
-reported by name and skipped.
+Runs are folders holding `events.out.tfevents.*` files, grouped by the env id and exp name each run logged
+with its hyperparameters (runs without them: by a folder name `{env_id}__{exp_name}__...`; `--group-regex`
+with named groups `env` and `algo`, searched in the folder name, overrides both). Runs with unreadable files,
+no events or a missing tag are reported by name and skipped.
 """
 
 import csv
@@ -62,7 +62,7 @@ class Args:
     table_name: str = "table"
     """the table is written to OUT/TABLE_NAME.md and .csv"""
     group_regex: str | None = None
-    """regex with named groups `env` and `algo`, searched in each run folder's name"""
+    """regex with named groups `env` and `algo`, searched in each run folder's name (instead of the logged ids)"""
     figures: bool = True
     """write the figures"""
     grid_points: int = 200
@@ -85,8 +85,20 @@ class Run:
     scalars: dict  # tag -> (steps, values) as numpy arrays
 
 
+def logged_identity(acc) -> dict:
+    """env_id, exp_name and seed from the `hyperparameters` text the training scripts log (empty if absent)."""
+    if "hyperparameters/text_summary" not in acc.Tags().get("tensors", []):
+        return {}
+    text = acc.Tensors("hyperparameters/text_summary")[0].tensor_proto.string_val[0].decode()
+    rows = [line.strip("|").split("|", 1) for line in text.splitlines() if line.count("|") >= 3]
+    table = {key: value for key, value in rows}
+    return {key: table[key] for key in ("env_id", "exp_name", "seed") if key in table}
+
+
 def find_runs(roots, group_regex=None) -> tuple[list[Run], list[str]]:
-    """Every folder under the roots with an event file, read with TensorBoard's own reader."""
+    """Every folder under the roots with an event file, read with TensorBoard's own reader. A run's game and
+    algorithm are the env id and exp name it logged with its hyperparameters; for runs that logged none,
+    the folder name `{env_id}__{exp_name}__...` (or --group-regex, which overrides both)."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     runs, problems = [], []
@@ -100,21 +112,10 @@ def find_runs(roots, group_regex=None) -> tuple[list[Run], list[str]]:
     pattern = re.compile(group_regex) if group_regex else None
     for folder in sorted(folders):
         name = os.path.basename(os.path.normpath(folder))
-        if pattern:
-            match = pattern.search(name)
-            if not match:
-                problems.append(f"{folder}: name does not match --group-regex, skipped")
-                continue
-            env, algo = match.group("env"), match.group("algo")
-        else:
-            parts = name.split("__")
-            if len(parts) < 2:
-                problems.append(f"{folder}: name is not {{env_id}}__{{exp_name}}__..., skipped")
-                continue
-            env, algo = parts[0], parts[1]
         try:
-            acc = EventAccumulator(folder, size_guidance={"scalars": 0})
+            acc = EventAccumulator(folder, size_guidance={"scalars": 0, "tensors": 1})
             acc.Reload()
+            identity = logged_identity(acc)
             scalars = {}
             for tag in acc.Tags()["scalars"]:
                 events = acc.Scalars(tag)
@@ -124,6 +125,21 @@ def find_runs(roots, group_regex=None) -> tuple[list[Run], list[str]]:
                 scalars[tag] = (steps[order], values[order])
         except Exception as e:  # a truncated or foreign file: say which, go on
             problems.append(f"{folder}: unreadable event file ({type(e).__name__}: {e}), skipped")
+            continue
+        if pattern:
+            match = pattern.search(name)
+            if not match:
+                problems.append(f"{folder}: name does not match --group-regex, skipped")
+                continue
+            env, algo = match.group("env"), match.group("algo")
+        elif "env_id" in identity and "exp_name" in identity:
+            env, algo = identity["env_id"], identity["exp_name"]
+        elif len(name.split("__")) >= 2:
+            env, algo = name.split("__")[:2]
+        else:
+            problems.append(
+                f"{folder}: no logged hyperparameters and a name not {{env_id}}__{{exp_name}}__..., skipped"
+            )
             continue
         if not scalars:
             problems.append(f"{folder}: no scalar events, skipped")

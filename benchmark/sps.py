@@ -10,7 +10,7 @@ memory are that measurement's own. The first `--warmup` iterations are dropped; 
 """
 
 import contextlib
-import importlib.util
+import importlib
 import json
 import multiprocessing as mp
 import os
@@ -22,7 +22,7 @@ import tempfile
 import time
 from dataclasses import asdict, dataclass
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # the training scripts
 SCRIPTS = {"ppo": "ppo_atari_envpool.py", "p3o": "p3o_atari_envpool.py"}
 
 
@@ -51,7 +51,7 @@ class Args:
     rounds: int = 1
     """measure each script this many times, the order reversed every other round (so a machine that drifts
     does not favour the script measured first); medians over the rounds"""
-    out: str = "benchmark/sps.json"
+    out: str = "runs/sps.json"
     """where the JSON results go"""
 
 
@@ -60,10 +60,7 @@ def _peak_rss_mb() -> float:
 
 
 def _load(name: str):
-    spec = importlib.util.spec_from_file_location(f"{name}_atari_envpool", os.path.join(ROOT, SCRIPTS[name]))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return importlib.import_module(SCRIPTS[name][: -len(".py")])
 
 
 def _measure_script(name: str, settings: dict, warmup: int, iterations: int, cuda: bool, queue) -> None:
@@ -76,6 +73,7 @@ def _measure_script(name: str, settings: dict, warmup: int, iterations: int, cud
         os.chdir(tmp)  # the run's event file goes to a throw-away folder
         with contextlib.redirect_stdout(devnull):
             timings = module.main(args)
+    timings["iteration_s"] = [r + u for r, u in zip(timings["rollout_s"], timings["update_s"], strict=True)]
     result = {key: statistics.median(batch / s for s in values[warmup:]) for key, values in timings.items()}
     result = {key.replace("_s", "_sps"): value for key, value in result.items()}
     result["peak_rss_mb"] = _peak_rss_mb()

@@ -18,7 +18,7 @@ CASES = [
     ({"num_envs": 4, "num_steps": 10, "num_minibatches": 3, "total_timesteps": 400}, "does not divide into"),
     (
         {"num_envs": 4, "num_steps": 32, "num_minibatches": 2, "total_timesteps": 100},
-        "smaller than one batch",
+        "is less than one batch (128): no update would run",
     ),
     ({"num_envs": 0}, "--num-envs must be positive"),
     ({"num_steps": -1}, "--num-steps must be positive"),

@@ -24,6 +24,11 @@ def rollout(T=7, N=3, seed=0, done_at=((3, 0), (5, 2))):
     return rewards, values, dones, next_value, next_done, betas, next_beta
 
 
+def gbae(rewards, values, dones, next_value, next_done, betas, next_beta, gamma, lam):
+    """p3o.gbae with beta(s_0..s_{T-1}) and beta(s_T) given apart, as the references below take them."""
+    return p3o.gbae(rewards, values, dones, next_value, next_done, torch.cat([betas, next_beta[None]]), gamma, lam)
+
+
 def deltas(rewards, values, dones, next_value, next_done, gamma=GAMMA):
     next_values = torch.cat([values[1:], next_value[None]])
     next_nonterminal = 1.0 - torch.cat([dones[1:], next_done[None]])
@@ -64,24 +69,24 @@ def test_gae_matches_a_hand_computed_two_step_example():
 def test_gbae_with_beta_zero_is_gae():
     r, v, d, nv, nd, _, _ = rollout()
     zeros = torch.zeros_like(r)
-    got = p3o.gbae(r, v, d, nv, nd, zeros, torch.zeros_like(nv), GAMMA, LAM)
+    got = gbae(r, v, d, nv, nd, zeros, torch.zeros_like(nv), GAMMA, LAM)
     torch.testing.assert_close(got, ppo.gae(r, v, d, nv, nd, GAMMA, LAM), rtol=0, atol=0)
 
 
 def test_gbae_with_lambda_zero_is_the_td_error():
     r, v, d, nv, nd, b, nb = rollout()
-    torch.testing.assert_close(p3o.gbae(r, v, d, nv, nd, b, nb, GAMMA, 0.0), deltas(r, v, d, nv, nd))
+    torch.testing.assert_close(gbae(r, v, d, nv, nd, b, nb, GAMMA, 0.0), deltas(r, v, d, nv, nd))
 
 
 def test_gbae_with_beta_one_is_the_td_error():
     r, v, d, nv, nd, b, nb = rollout()
-    got = p3o.gbae(r, v, d, nv, nd, torch.ones_like(b), torch.ones_like(nb), GAMMA, LAM)
+    got = gbae(r, v, d, nv, nd, torch.ones_like(b), torch.ones_like(nb), GAMMA, LAM)
     torch.testing.assert_close(got, deltas(r, v, d, nv, nd))
 
 
 def test_gbae_with_lambda_one_is_the_beta_return_minus_value():
     r, v, d, nv, nd, b, nb = rollout(T=9, N=3, seed=3)
-    got = p3o.gbae(r, v, d, nv, nd, b, nb, GAMMA, 1.0)
+    got = gbae(r, v, d, nv, nd, b, nb, GAMMA, 1.0)
     expected = beta_return_reference(r, v, d, nv, nd, b, nb, GAMMA) - v
     torch.testing.assert_close(got, expected)
 
@@ -90,7 +95,7 @@ def test_gbae_recursion_on_a_hand_computed_example():
     # one env, T = 2: A_1 = delta_1; A_0 = delta_0 + gamma lambda (1 - beta_1) A_1
     r = torch.tensor([[1.0], [0.0]])
     v = torch.tensor([[0.0], [2.0]])
-    got = p3o.gbae(
+    got = gbae(
         r, v, torch.zeros(2, 1), torch.tensor([1.0]), torch.tensor([0.0]),
         torch.tensor([[0.3], [0.25]]), torch.tensor([0.9]), 0.5, 0.8,
     )  # fmt: skip
@@ -106,7 +111,7 @@ def test_episode_end_cuts_the_trace(fn):
     def adv(rewards, values):
         if fn == "gae":
             return ppo.gae(rewards, values, d, nv, nd, GAMMA, LAM)
-        return p3o.gbae(rewards, values, d, nv, nd, b, nb, GAMMA, LAM)
+        return gbae(rewards, values, d, nv, nd, b, nb, GAMMA, LAM)
 
     base = adv(r, v)
     r2, v2 = r.clone(), v.clone()
