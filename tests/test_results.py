@@ -1,17 +1,13 @@
 """benchmark/results.py on event files written here with SummaryWriter, with known values."""
 
 import csv
-import importlib.util
 import os
 
 import numpy as np
 import pytest
 from torch.utils.tensorboard import SummaryWriter
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-spec = importlib.util.spec_from_file_location("results", os.path.join(ROOT, "benchmark", "results.py"))
-results = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(results)
+from benchmark import results
 
 P3O, PPO = "p3o_atari_envpool", "ppo_atari_envpool"
 # eval returns per (game, algo, seed): 10 games each, known means
@@ -156,3 +152,22 @@ def test_across_games_iqm_and_probability_of_improvement(root, tmp_path):
 def test_no_runs_is_a_clear_error(tmp_path):
     with pytest.raises(SystemExit, match="no readable runs"):
         results.main(results.Args(roots=(str(tmp_path),), out=str(tmp_path / "o")))
+
+
+def test_runs_named_with_run_name_are_grouped_by_their_logged_hyperparameters(tmp_path):
+    # folders named as a user names them with --run-name: only the logged hyperparameters say what they are
+    for name, env, algo, value in [("breakout_p3o", "Breakout-v5", P3O, 4.0), ("b_ppo_a", "Breakout-v5", PPO, 2.0)]:
+        writer = SummaryWriter(str(tmp_path / "runs" / name))
+        writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n|exp_name|{algo}|\n|seed|1|\n|env_id|{env}|")
+        writer.add_scalar("eval/episodic_return", value, 0)
+        writer.close()
+    # and a run that logged none falls back on its folder name
+    writer = SummaryWriter(str(tmp_path / "runs" / f"Qbert-v5__{PPO}__1__1"))
+    writer.add_scalar("eval/episodic_return", 7.0, 0)
+    writer.close()
+    result = results.main(results.Args(roots=(str(tmp_path / "runs"),), out=str(tmp_path / "o"), figures=False))
+    assert result["table"] == {
+        ("Breakout-v5", P3O): (4.0, 0.0, 1),
+        ("Breakout-v5", PPO): (2.0, 0.0, 1),
+        ("Qbert-v5", PPO): (7.0, 0.0, 1),
+    }
