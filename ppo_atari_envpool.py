@@ -2,6 +2,7 @@
 # has the docs; p3o_atari_envpool.py is this file plus P3O, so diff the two to see what P3O changes.
 import ctypes
 import difflib
+import importlib.util
 import json
 import os
 import random
@@ -11,6 +12,7 @@ import time
 from dataclasses import dataclass
 
 import envpool
+import imageio_ffmpeg
 import numpy as np
 import torch
 import torch.nn as nn
@@ -44,6 +46,14 @@ class Args:
     """after training, play this many full games (each its own environment and seed) and log their returns"""
     eval_greedy: bool = False
     """evaluate with the most probable action instead of sampling from the policy"""
+    capture_video: bool = False
+    """write each evaluation game as an MP4 (colour, 210x160, 15 frames/s) to `runs/{run_name}/videos/`"""
+    track: bool = False
+    """if toggled, this experiment will be tracked with Weights and Biases (needs the `wandb` extra)"""
+    wandb_project_name: str = "p3o-atari"
+    """the wandb's project name"""
+    wandb_entity: str | None = None
+    """the entity (team) of wandb's project"""
 
     # Algorithm specific arguments: defaults are the thesis's table 5.2, the same for PPO and P3O
     env_id: str = "Breakout-v5"
@@ -90,12 +100,11 @@ class Args:
     """the number of iterations (computed in runtime)"""
 
 
-def make_env(env_id: str, num_envs: int, seed: int):
+def make_env(env_id: str, num_envs: int, seed: int, render_mode: str | None = None):
     """envpool Atari as in CleanRL: episodic life, clipped rewards, 4 stacked 84x84 grey frames.
-    envpool seeds environment i with seed + i."""
-    return envpool.make(
-        env_id, env_type="gymnasium", num_envs=num_envs, episodic_life=True, reward_clip=True, seed=seed
-    )
+    envpool seeds environment i with seed + i. `render_mode="rgb_array"` adds colour frames for videos."""
+    kwargs = dict(episodic_life=True, reward_clip=True, seed=seed, render_mode=render_mode)
+    return envpool.make(env_id, env_type="gymnasium", num_envs=num_envs, **kwargs)
 
 
 def layer_init(layer, std=np.sqrt(2), bias_const=0.0):
@@ -202,6 +211,26 @@ def main(args: Args) -> dict[str, list[float]]:
 
     from torch.utils.tensorboard import SummaryWriter
 
+    if args.track:  # W&B mirrors the TensorBoard events; a resumed run continues the same W&B run
+        import uuid
+
+        import wandb
+
+        os.makedirs(run_dir, exist_ok=True)
+        id_path = os.path.join(run_dir, "wandb_id")
+        run_id = open(id_path).read() if checkpoint and os.path.exists(id_path) else uuid.uuid4().hex
+        with open(id_path, "w") as f:
+            f.write(run_id)
+        wandb.init(
+            project=args.wandb_project_name,
+            entity=args.wandb_entity,
+            sync_tensorboard=True,
+            config=vars(args),
+            name=os.path.basename(run_dir),
+            save_code=True,
+            id=run_id,
+            resume="allow",
+        )
     # on resume, points the killed run logged after its checkpoint are purged, so none is duplicated
     writer = SummaryWriter(run_dir, purge_step=start_iteration * args.batch_size + 1 if checkpoint else None)
     if checkpoint is None:
@@ -388,9 +417,13 @@ def main(args: Args) -> dict[str, list[float]]:
 
         save_checkpoint(checkpoint_path, agent, optimizer, args, args.num_iterations)
         if args.eval_episodes:
-            report = evaluate(agent, args.env_id, args.eval_episodes, args.seed + 1_000_000, args.eval_greedy, device)
+            videos = f"{run_dir}/videos" if args.capture_video else None
+            seed = args.seed + 1_000_000
+            report = evaluate(agent, args.env_id, args.eval_episodes, seed, args.eval_greedy, device, videos)
             write_evaluation(report | {"algorithm": ALGORITHM, "global_step": global_step}, run_dir, writer)
             print(f"eval: {args.eval_episodes} games, return {report['mean']:.1f} ± {report['std_err']:.1f}")
+            if args.track and videos:
+                wandb.log({f"videos/eval-game{i}": wandb.Video(path) for i, path in enumerate(report["videos"])})
         if args.save_model:
             model_path = f"{run_dir}/{args.exp_name}.cleanrl_model"
             save(model_path, agent, args, env_id=args.env_id, num_actions=agent.actor.out_features)
@@ -413,6 +446,10 @@ def check_args(args: Args) -> None:
     bad += [f"{flag[n]} must be 0 or more, got {a[n]}." for n in ("checkpoint_every", "eval_episodes") if a[n] < 0]
     if args.auto_resume and not args.run_name:
         bad.append("--auto-resume needs --run-name, the run folder it continues.")
+    if args.capture_video and not args.eval_episodes:
+        bad.append("--capture-video records the evaluation games, but --eval-episodes is 0.")
+    if args.track and importlib.util.find_spec("wandb") is None:
+        bad.append("--track needs wandb: run with `uv run --extra wandb ...` (or `pip install wandb`).")
     batch = args.num_envs * args.num_steps
     if not bad and batch % args.num_minibatches:
         bad.append(
@@ -434,6 +471,7 @@ def check_args(args: Args) -> None:
 FORMAT = "atari-envpool/2"  # checkpoints and saved models: the agent, its arguments and more
 # flags that may change when a run is resumed; the other arguments are the experiment's, from its checkpoint
 RUN_FLAGS = {"cuda", "save_model", "checkpoint_every", "resume", "auto_resume", "eval_episodes", "eval_greedy"}
+RUN_FLAGS |= {"capture_video", "track", "wandb_project_name", "wandb_entity"}
 
 
 def save(path: str, agent: Agent, args: Args, **extra) -> None:
@@ -481,11 +519,19 @@ def open_run(args: Args) -> tuple[str, dict | None]:
     return os.path.dirname(path), checkpoint
 
 
-def evaluate(agent, env_id, episodes, seed, greedy, device) -> dict:
+def evaluate(agent, env_id, episodes, seed, greedy, device, video_dir=None) -> dict:
     """Play `episodes` full games (all lives), game i in its own environment seeded `seed + i`, with
     actions sampled from the policy (or its most probable action when `greedy`); unclipped returns.
-    The mean's standard error uses the population standard deviation, as the thesis's table 5.1."""
-    envs = make_env(env_id, episodes, seed)
+    The mean's standard error uses the population standard deviation, as the thesis's table 5.1.
+    With `video_dir`, game i is also written to `video_dir/eval-game{i}.mp4`: the colour frame after each
+    of its agent steps, at 15 frames/s (the emulator's 60 Hz over envpool's frame skip of 4)."""
+    envs = make_env(env_id, episodes, seed, render_mode="rgb_array" if video_dir else None)
+    paths = [f"{video_dir}/eval-game{i}.mp4" for i in range(episodes)] if video_dir else []
+    if video_dir:
+        os.makedirs(video_dir, exist_ok=True)
+    writers = [imageio_ffmpeg.write_frames(path, (160, 210), fps=15, macro_block_size=1) for path in paths]
+    for writer in writers:
+        writer.send(None)  # start the encoder
     obs_np, _ = envs.reset()
     returns, lengths, playing = np.zeros(episodes), np.zeros(episodes, dtype=np.int64), np.ones(episodes, dtype=bool)
     with torch.inference_mode():
@@ -493,13 +539,18 @@ def evaluate(agent, env_id, episodes, seed, greedy, device) -> dict:
             logits = agent.actor(agent.hidden(torch.as_tensor(obs_np, device=device)))
             action = logits.argmax(-1) if greedy else Categorical(logits=logits, validate_args=False).sample()
             obs_np, _, terminations, truncations, info = envs.step(action.cpu().numpy())
+            if writers:  # the colour frame of each game still playing
+                for game, frame in zip(np.flatnonzero(playing), envs.render(np.flatnonzero(playing)), strict=True):
+                    writers[game].send(np.ascontiguousarray(frame))
             returns += info["reward"] * playing
             lengths += playing
             playing &= ~np.logical_or(info["terminated"].astype(bool), truncations)
     envs.close()
+    for writer in writers:
+        writer.close()
     games = {"seeds": [seed + i for i in range(episodes)], "returns": returns.tolist(), "lengths": lengths.tolist()}
     summary = {"mean": float(returns.mean()), "std_err": float(returns.std() / np.sqrt(episodes))}
-    return {"env_id": env_id, "greedy": greedy} | games | summary
+    return {"env_id": env_id, "greedy": greedy} | games | summary | ({"videos": paths} if paths else {})
 
 
 def write_evaluation(report: dict, run_dir: str, writer) -> None:

@@ -6,6 +6,7 @@ Prints each game's return and the mean ± standard error.
 
     uv run python benchmark/evaluate.py --model-path runs/RUN/p3o_atari_envpool.cleanrl_model --episodes 10
     uv run python benchmark/evaluate.py --random --env-id Breakout-v5 --episodes 10
+    uv run python benchmark/evaluate.py --model-path runs/RUN/checkpoint.pt --episodes 3 --run-dir runs/RUN/eval --video
 """
 
 import importlib
@@ -34,6 +35,8 @@ class Args:
     """run the network on the GPU when there is one"""
     run_dir: str | None = None
     """also write `eval.json` and a TensorBoard event file (`eval/episodic_return`) into this folder"""
+    video: bool = False
+    """also write each game as an MP4 (colour, 210x160, 15 frames/s) to `RUN_DIR/videos/eval-game{i}.mp4`"""
 
 
 def load_script(algorithm: str):
@@ -69,6 +72,8 @@ def main(args: Args) -> dict:
         sys.exit("error: give either --model-path or --random.")
     if args.random and args.env_id is None:
         sys.exit("error: --random needs --env-id.")
+    if args.video and not args.run_dir:
+        sys.exit("error: --video needs --run-dir, the folder whose videos/ the games are written to.")
     saved = None if args.random else load_model(args.model_path, load_script("ppo"))
     script = load_script("ppo" if saved is None else saved["algorithm"])
     env_id = args.env_id or saved["args"]["env_id"]
@@ -91,7 +96,8 @@ def main(args: Args) -> dict:
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
     agent = agent.to(device)
 
-    report = script.evaluate(agent, env_id, args.episodes, args.seed, args.greedy, device)
+    videos = os.path.join(args.run_dir, "videos") if args.video else None
+    report = script.evaluate(agent, env_id, args.episodes, args.seed, args.greedy, device, videos)
     algorithm = "random" if saved is None else saved["algorithm"]
     report |= {"algorithm": algorithm, "model_path": args.model_path}
     for game, (ret, length) in enumerate(zip(report["returns"], report["lengths"], strict=True)):
@@ -109,7 +115,7 @@ def main(args: Args) -> dict:
         )
         script.write_evaluation(report, args.run_dir, writer)
         writer.close()
-        print(f"wrote {os.path.join(args.run_dir, 'eval.json')}")
+        print(f"wrote {os.path.join(args.run_dir, 'eval.json')}" + (f" and {videos}/" if videos else ""))
     return report
 
 
