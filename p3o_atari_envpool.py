@@ -503,8 +503,8 @@ def check_args(args: Args) -> None:
         bad.append(f"--total-timesteps {args.total_timesteps} is less than one batch ({batch}): no update would run.")
     atari = [i for i in envpool.list_all_envs() if envpool.registration.registry.specs[i][0] == "envpool.atari"]
     if args.env_id not in atari:
-        close = difflib.get_close_matches(args.env_id, atari, n=3, cutoff=0.5)
         known = args.env_id in envpool.list_all_envs()
+        close = [] if known else difflib.get_close_matches(args.env_id, atari, n=3, cutoff=0.5)
         what = "an envpool environment but not an Atari game" if known else "not an envpool environment"
         hint = f"Did you mean {', '.join(close)}?" if close else "Atari ids look like Breakout-v5."
         bad.append(f"--env-id {args.env_id} is {what}. {hint}")

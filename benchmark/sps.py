@@ -66,6 +66,7 @@ def _load(name: str):
 def _measure_script(name: str, settings: dict, warmup: int, iterations: int, cuda: bool, queue) -> None:
     import torch
 
+    started = time.time()
     module = _load(name)
     batch = settings["num_envs"] * settings["num_steps"]
     args = module.Args(**settings, total_timesteps=batch * (warmup + iterations), cuda=cuda, seed=1, eval_episodes=0)
@@ -77,6 +78,7 @@ def _measure_script(name: str, settings: dict, warmup: int, iterations: int, cud
     result = {key: statistics.median(batch / s for s in values[warmup:]) for key, values in timings.items()}
     result = {key.replace("_s", "_sps"): value for key, value in result.items()}
     result["peak_rss_mb"] = _peak_rss_mb()
+    result["started"] = started  # unix time, so the order of the measurements can be checked
     result["peak_gpu_mb"] = torch.cuda.max_memory_allocated() / 2**20 if torch.cuda.is_available() else None
     queue.put(result)
 
@@ -146,7 +148,7 @@ def main(args: Args) -> dict:
         for name in args.scripts if r % 2 == 0 else reversed(args.scripts):
             rounds[name].append(_in_child(_measure_script, name, settings, args.warmup, args.iterations, args.cuda))
     for name, measured in rounds.items():
-        results[name] = {key: _median([m[key] for m in measured]) for key in measured[0]}
+        results[name] = {key: _median([m[key] for m in measured]) for key in measured[0] if key != "started"}
         results[name]["rounds"] = measured
 
     raw = results["raw_env"]["rollout_sps"]

@@ -69,7 +69,7 @@ def runs(tmp_path_factory):
     for algo in SCRIPTS:
         for env_id in GAMES:
             workdir = tmp_path_factory.mktemp(f"{algo}-{env_id}")
-            extra = ["--save-model"] if env_id == "Breakout-v5" else []
+            extra = ["--save-model", "--eval-greedy"] if env_id == "Breakout-v5" else []
             proc, run_dirs = train(algo, env_id, str(workdir), *extra)
             out[algo, env_id] = proc, run_dirs
     return out
@@ -98,7 +98,9 @@ def test_run_exits_zero_and_logs_every_tag_with_finite_values(runs, algo, env_id
         hist = acc.Histograms("p3o/beta")
         assert len(hist) == ITERATIONS
         for h in hist:
-            assert 0.0 <= h.histogram_value.min and h.histogram_value.max <= 1.0
+            # min-max per environment: in each iteration of this fixed-seed run some environment's smoothed
+            # state importance has its minimum and some its maximum among s_0..s_{T-1}, so beta is exactly 0 and 1
+            assert (h.histogram_value.min, h.histogram_value.max) == (0.0, 1.0)
             assert h.histogram_value.num == 128 * 4
         for _, beta_mean in scalars(acc, "p3o/beta_mean"):
             assert 0.0 <= beta_mean <= 1.0
@@ -109,6 +111,11 @@ def test_run_exits_zero_and_logs_every_tag_with_finite_values(runs, algo, env_id
     lengths = [v for _, v in scalars(acc, "charts/episodic_length")]
     returns = [v for _, v in scalars(acc, "charts/episodic_return")]
     assert min(lengths) > 50 and all(r >= 0 for r in returns)
+    # unclipped game scores: Qbert scores in multiples of 25 (clipped rewards would sum to small integers)
+    if env_id == "Qbert-v5":
+        assert all(r % 25 == 0 for r in returns) and max(returns) >= 25, returns
+    else:
+        assert all(r == int(r) for r in returns)
     # annealed learning rate: 2.5e-4 * (1, 2/3, 1/3)
     lrs = [v for _, v in scalars(acc, "charts/learning_rate")]
     np.testing.assert_allclose(lrs, [2.5e-4, 2.5e-4 * 2 / 3, 2.5e-4 / 3], rtol=1e-6)
@@ -195,13 +202,56 @@ def test_evaluation_after_training_logs_each_game(runs, algo):
     assert proc.returncode == 0, proc.stderr[-3000:]
     report = json.load(open(os.path.join(run_dirs[0], "eval.json")))
     assert report["env_id"] == "Qbert-v5" and report["algorithm"] == algo and not report["greedy"]
-    assert len(report["returns"]) == 10 and len(set(report["seeds"])) == 10
+    # game i is played in its own environment seeded seed + 1,000,000 + i (the training seed is 3)
+    assert report["seeds"] == [1_000_003 + i for i in range(10)] and len(report["returns"]) == 10
     assert all(length > 50 for length in report["lengths"])  # full games of several lives
+    assert all(r % 25 == 0 for r in report["returns"]) and max(report["returns"]) >= 25  # unclipped scores
     assert report["mean"] == pytest.approx(np.mean(report["returns"]))
     assert report["std_err"] == pytest.approx(np.std(report["returns"]) / np.sqrt(10))
     logged = scalars(load_events(run_dirs[0]), "eval/episodic_return")
     assert [s for s, _ in logged] == list(range(10))
     np.testing.assert_allclose([v for _, v in logged], report["returns"])
+
+
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_greedy_evaluation_is_reproduced_by_the_evaluate_script(runs, algo):
+    # the training run evaluated its final agent greedily (--eval-greedy) on seeds 1,000,003 + i; the saved
+    # model played again by benchmark/evaluate.py, greedily on the same seeds, must play the same games
+    import json
+
+    _, run_dirs = runs[algo, "Breakout-v5"]
+    report = json.load(open(os.path.join(run_dirs[0], "eval.json")))
+    assert report["greedy"] and report["seeds"] == [1_000_003 + i for i in range(10)]
+    model = os.path.join(run_dirs[0], f"{algo}_atari_envpool.cleanrl_model")
+    proc = evaluate_cli("--model-path", model, "--episodes", "10", "--seed", "1000003", "--greedy")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    for game, (ret, length) in enumerate(zip(report["returns"], report["lengths"], strict=True)):
+        assert f"game {game} (seed {1_000_003 + game}): return {ret:.1f}, {length} steps" in proc.stdout
+
+
+def test_another_seed_gives_other_losses(runs, tmp_path):
+    _, first_dirs = runs["p3o", "Breakout-v5"]
+    proc, other_dirs = train("p3o", "Breakout-v5", str(tmp_path), "--seed", "4", "--eval-episodes", "0")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    (other,) = glob.glob(os.path.join(str(tmp_path), "runs", "Breakout-v5__p3o_atari_envpool__4__*"))
+    first, second = load_events(first_dirs[0]), load_events(other)
+    for tag in ("losses/value_loss", "losses/policy_loss", "p3o/beta_mean"):
+        assert all(a != b for (_, a), (_, b) in zip(scalars(first, tag), scalars(second, tag), strict=True)), tag
+
+
+def test_environment_i_is_seeded_with_seed_plus_i():
+    actions = np.random.default_rng(0).integers(0, 4, size=(300, 3)).astype(np.int32)
+    together, alone = ppo.make_env("Breakout-v5", 3, seed=10), ppo.make_env("Breakout-v5", 1, seed=12)
+    obs3, _ = together.reset()
+    obs1, _ = alone.reset()
+    for t in range(300):
+        np.testing.assert_array_equal(obs3[2], obs1[0])
+        obs3, r3, *_ = together.step(actions[t])
+        obs1, r1, *_ = alone.step(actions[t, 2:])
+        assert r3[2] == r1[0]
+    assert not np.array_equal(obs3[1], obs3[2])  # and other seeds play other games
+    together.close()
+    alone.close()
 
 
 def evaluate_cli(*flags, cwd=None):

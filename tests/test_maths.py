@@ -178,13 +178,16 @@ def test_alpha_one_is_plain_min_max():
     torch.testing.assert_close(p3o.compute_betas(si, 1.0), torch.tensor([[0.0, 0.0], [1.0, 1 / 3], [0.5, 1.0]]))
 
 
-def test_betas_lie_in_unit_interval_and_span_it_per_environment():
-    si = torch.rand(129, 8, generator=torch.Generator().manual_seed(2)) * torch.logspace(-6, 3, 8)
-    betas = p3o.compute_betas(si, 0.9)
-    assert betas.shape == si.shape
-    assert betas.min() >= 0 and betas.max() <= 1
-    torch.testing.assert_close(betas.min(0).values, torch.zeros(8))
-    torch.testing.assert_close(betas.max(0).values, torch.ones(8))
+def test_float32_betas_span_exactly_0_to_1_and_match_a_float64_reference():
+    # SI over nine orders of magnitude across environments, in the scripts' float32
+    scale = torch.logspace(-6, 3, 8, dtype=torch.float64)
+    si = torch.rand(257, 8, generator=torch.Generator().manual_seed(2), dtype=torch.float64) * scale
+    betas = p3o.compute_betas(si.float(), 0.9)
+    assert betas.dtype == torch.float32 and betas.shape == si.shape
+    assert torch.equal(betas.min(0).values, torch.zeros(8)) and torch.equal(betas.max(0).values, torch.ones(8))
+    x = ewma_reference(si.float().double(), 0.9)  # the same float32 inputs, smoothed in float64
+    reference = (x - x.min(0).values) / (x.max(0).values - x.min(0).values)
+    torch.testing.assert_close(betas.double(), reference, rtol=0, atol=1e-5)
 
 
 def test_betas_are_computed_per_environment():

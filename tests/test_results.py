@@ -2,6 +2,7 @@
 
 import csv
 import os
+import re
 
 import numpy as np
 import pytest
@@ -147,6 +148,16 @@ def test_across_games_iqm_and_probability_of_improvement(root, tmp_path):
     p = float(text.split(f"P({P3O} > {PPO}) = ")[1].split(",")[0])
     assert p == pytest.approx((1 + 3 / 9) / 2, abs=1e-3)
     assert os.path.isfile(tmp_path / "table_across_games.md")
+    # the IQM by hand: human-normalised per-run scores, (score - random) / (human - random), of both games
+    # pooled (3 runs x 2 games), the lowest and highest quarter (one value each) dropped, the rest averaged
+    for algo, (breakout, qbert) in {P3O: ([10, 20, 30], [4.5, 100, 200]), PPO: ([5, 7, 9], [50, 150, 250])}.items():
+        scores = [(x - 1.7) / (30.5 - 1.7) for x in breakout] + [(x - 163.9) / (13455.0 - 163.9) for x in qbert]
+        iqm = np.sort(scores)[1:-1].mean()
+        row = re.search(rf"\| {algo} \| (-?[\d.]+) \| \[(-?[\d.]+), (-?[\d.]+)\] \|", text)
+        point, lo, hi = (float(g) for g in row.groups())
+        assert point == pytest.approx(iqm, abs=5e-4)
+        # a bootstrap IQM averages values drawn from the scores, so the interval lies within their range
+        assert min(scores) - 5e-4 <= lo <= point <= hi <= max(scores) + 5e-4 and lo < hi
 
 
 def test_no_runs_is_a_clear_error(tmp_path):

@@ -2,8 +2,12 @@
 
 import os
 import re
+import shlex
+import signal
 import subprocess
 import sys
+
+import torch
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SWEEP = os.path.join(ROOT, "benchmark", "p3o_vs_ppo.sh")
@@ -53,29 +57,60 @@ def test_knobs_override_the_grid(tmp_path):
     assert all("--env-id Pong-v5" in x and "--total-timesteps 1000" in x and x.endswith("--num-envs 8") for x in lines)
 
 
-def test_local_mode_runs_a_tiny_grid_and_skips_it_when_run_again(tmp_path):
+def test_local_mode_resumes_unfinished_runs_runs_workers_at_a_time_and_skips_finished_ones(tmp_path):
     tiny = "--num-envs 4 --num-steps 32 --num-minibatches 2 --update-epochs 1 --eval-episodes 1"
     env = {
         "GAMES": "Breakout-v5 Qbert-v5",
         "SEEDS": "1",
-        "TOTAL_TIMESTEPS": "256",
+        "TOTAL_TIMESTEPS": "512",
         "EXTRA_ARGS": tiny,
         "WORKERS": "2",
         "GROUP": "tiny",
         "PYTHON": sys.executable,
     }
-    proc = sweep(env, tmp_path)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
+    # an unfinished run: one of the grid's own commands, stopped by SIGTERM after its first iteration
+    commands = sweep(env | {"DRY_RUN": "1"}, tmp_path).stdout.splitlines()
+    (command,) = [c for c in commands if "--env-id Qbert-v5" in c and "p3o_atari_envpool.py" in c]
+    proc = subprocess.Popen(shlex.split(command), cwd=tmp_path, stdout=subprocess.PIPE, text=True)
+    for line in proc.stdout:
+        if line.startswith("iteration 1/"):
+            proc.send_signal(signal.SIGTERM)
+            break
+    proc.communicate(timeout=300)
+    assert proc.returncode == 128 + signal.SIGTERM
+    stopped_at = torch.load(tmp_path / "runs/tiny/Qbert-v5__p3o_atari_envpool__1/checkpoint.pt")["iteration"]
+
+    result = sweep(env, tmp_path)
+    assert result.returncode == 0, result.stdout + result.stderr
     for game in ("Breakout-v5", "Qbert-v5"):
         for algo in ("ppo", "p3o"):
             name = f"{game}__{algo}_atari_envpool__1"
             run_dir = tmp_path / "runs" / "tiny" / name
-            assert (run_dir / "checkpoint.pt").is_file()
+            assert torch.load(run_dir / "checkpoint.pt")["finished"]
             assert (run_dir / "eval.json").is_file()
             log = (tmp_path / "runs" / "tiny" / "logs" / f"{name}.log").read_text()
-            assert "iteration 2/2 global_step=256" in log
+            assert "iteration 4/4 global_step=512" in log
+            resumed = f"resuming runs/tiny/{name} after iteration {stopped_at} " in log
+            assert resumed == (name == "Qbert-v5__p3o_atari_envpool__1"), log
+    # WORKERS=2: never more than two runs at once, and two at once at some point
+    running, most = 0, 0
+    for line in result.stdout.splitlines():
+        running += line.startswith("start: ") - line.startswith("done:  ")
+        most = max(most, running)
+    assert most == 2 and running == 0
+
     again = sweep(env, tmp_path)
     assert again.returncode == 0
     log = (tmp_path / "runs" / "tiny" / "logs" / "Qbert-v5__p3o_atari_envpool__1.log").read_text()
-    assert "already finished (256 steps); nothing to do." in log
-    assert log.count("iteration 2/2") == 1
+    assert "already finished (512 steps); nothing to do." in log
+    assert log.count("iteration 4/4") == 1
+
+
+def test_local_mode_fails_with_status_1_when_a_run_fails(tmp_path):
+    env = {"GAMES": "NoSuchGame-v5", "SEEDS": "1", "GROUP": "bad", "PYTHON": sys.executable, "WORKERS": "2"}
+    proc = sweep(env, tmp_path)
+    assert proc.returncode == 1
+    for algo in ("ppo", "p3o"):
+        log = f"runs/bad/logs/NoSuchGame-v5__{algo}_atari_envpool__1.log"
+        assert f"FAILED (see {log}): " in proc.stdout
+        assert "error: --env-id NoSuchGame-v5 is not an envpool environment." in (tmp_path / log).read_text()
