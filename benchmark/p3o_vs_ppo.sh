@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The thesis's grid: 6 games x 10 seeds x {PPO, P3O}, 20M steps each (thesis section 5.1), locally or
 # as one Slurm job array. Runs go under runs/ in the current folder, as the training scripts' do.
-# Every run has a fixed name, runs/$GROUP/{env_id}__{exp_name}__{seed}, and is started with --auto-resume: running the sweep again skips finished runs (the script says so and
-# exits 0) and continues unfinished ones from their checkpoints, and a requeued Slurm task does the same.
+# Every run has a fixed name, runs/$GROUP/{env_id}__{exp_name}__{seed}, and is started with --auto-resume:
+# running the sweep again leaves out the runs whose checkpoint says they finished (nothing is started or
+# submitted for them) and continues unfinished ones from their checkpoints; a requeued Slurm task does the same.
 #
 #   bash benchmark/p3o_vs_ppo.sh                        # local: WORKERS runs at a time, a log per run
 #   SLURM=1 bash benchmark/p3o_vs_ppo.sh                # one sbatch --array job, one task per run
@@ -60,6 +61,39 @@ done
 
 logs="runs/$GROUP/logs"
 
+# leave out finished runs (their checkpoint says so); one python call reads every checkpoint that exists
+if [ -d "runs/$GROUP" ]; then
+    # shellcheck disable=SC2086
+    finished=$($PYTHON - "${names[@]}" <<'PY'
+import os, sys, torch
+for name in sys.argv[1:]:
+    path = os.path.join("runs", name, "checkpoint.pt")
+    try:
+        if os.path.isfile(path) and torch.load(path, map_location="cpu", weights_only=True, mmap=True)["finished"]:
+            print(name)
+    except Exception:  # unreadable: not known to be finished, so it runs (and the script says why it cannot)
+        pass
+PY
+)
+    todo_commands=()
+    todo_names=()
+    for i in "${!names[@]}"; do
+        if ! grep -qxF "${names[$i]}" <<<"$finished"; then
+            todo_commands+=("${commands[$i]}")
+            todo_names+=("${names[$i]}")
+        fi
+    done
+    if [ "${#todo_names[@]}" -lt "${#names[@]}" ]; then
+        echo "$((${#names[@]} - ${#todo_names[@]})) of ${#names[@]} runs already finished; left out"
+    fi
+    if [ "${#todo_names[@]}" = 0 ]; then
+        echo "nothing to run: every run in runs/$GROUP has finished"
+        exit 0
+    fi
+    commands=("${todo_commands[@]}")
+    names=("${todo_names[@]}")
+fi
+
 sbatch_script() {
     cat <<SBATCH
 #!/usr/bin/env bash
@@ -74,6 +108,7 @@ cd "$PWD"
 commands=(
 $(printf '    %q\n' "${commands[@]}")
 )
+echo "task \$SLURM_ARRAY_TASK_ID (restart \${SLURM_RESTART_COUNT:-0}) on \$(hostname): \${commands[\$SLURM_ARRAY_TASK_ID]}"
 # SIGTERM (preemption, or SIGNAL_SECONDS before the time limit) goes to the training script, which writes
 # a checkpoint and exits; the task then requeues itself and continues with --auto-resume.
 bash -c "exec \${commands[\$SLURM_ARRAY_TASK_ID]}" &

@@ -99,10 +99,13 @@ def test_local_mode_resumes_unfinished_runs_runs_workers_at_a_time_and_skips_fin
         most = max(most, running)
     assert most == 2 and running == 0
 
+    # again: every run has finished, so nothing is started
     again = sweep(env, tmp_path)
     assert again.returncode == 0
+    assert (
+        again.stdout == "4 of 4 runs already finished; left out\nnothing to run: every run in runs/tiny has finished\n"
+    )
     log = (tmp_path / "runs" / "tiny" / "logs" / "Qbert-v5__p3o_atari_envpool__1.log").read_text()
-    assert "already finished (512 steps); nothing to do." in log
     assert log.count("iteration 4/4") == 1
 
 
