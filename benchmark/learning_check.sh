@@ -10,7 +10,8 @@
 #   P3O as specified does not learn (benchmark/README.md, "Does it learn?").
 #
 # The two scripts of a seed run side by side, one core each (OMP_NUM_THREADS=1), about 1.5 hours a seed on
-# 2 cores. Calling it again skips finished runs and resumes unfinished ones from their checkpoints.
+# 2 cores. Calling it again skips seeds whose outputs are in benchmark/results/<group>/runs/ and resumes
+# unfinished runs from their checkpoints.
 #
 #   bash benchmark/learning_check.sh                          # seeds 1 2 3, thesis regime
 #   SEEDS="4 5" bash benchmark/learning_check.sh              # more seeds
@@ -38,6 +39,11 @@ main() {
     mkdir -p "$logs" "$out/runs"
     for seed in $seeds; do
         local pids=() algo
+        if [ -f "$out/runs/Breakout-v5__ppo_atari_envpool__$seed/eval.json" ] &&
+            [ -f "$out/runs/Breakout-v5__p3o_atari_envpool__$seed/eval.json" ]; then
+            echo "seed $seed: done (its outputs are in $out/runs/)"
+            continue
+        fi
         for algo in ppo p3o; do
             local name="$group/Breakout-v5__${algo}_atari_envpool__$seed"
             echo "seed $seed: $algo -> runs/$name (log $logs/${algo}_$seed.log)"
