@@ -9,6 +9,7 @@ import random
 import signal
 import sys
 import time
+import uuid
 from dataclasses import dataclass
 
 import envpool
@@ -242,26 +243,8 @@ def main(args: Args) -> dict[str, list[float]]:
 
     from torch.utils.tensorboard import SummaryWriter
 
-    if args.track:  # W&B mirrors the TensorBoard events; a resumed run continues the same W&B run
-        import uuid
-
-        import wandb
-
-        os.makedirs(run_dir, exist_ok=True)
-        id_path = os.path.join(run_dir, "wandb_id")
-        run_id = open(id_path).read() if checkpoint and os.path.exists(id_path) else uuid.uuid4().hex
-        with open(id_path, "w") as f:
-            f.write(run_id)
-        wandb.init(
-            project=args.wandb_project_name,
-            entity=args.wandb_entity,
-            sync_tensorboard=True,
-            config=vars(args),
-            name=os.path.basename(run_dir),
-            save_code=True,
-            id=run_id,
-            resume="allow",
-        )
+    if args.track:  # W&B mirrors the TensorBoard events; started before the writer, which it patches
+        wandb = start_wandb(args, run_dir, resuming=checkpoint is not None)
     # on resume, points the killed run logged after its checkpoint are purged, so none is duplicated
     writer = SummaryWriter(run_dir, purge_step=start_iteration * args.batch_size + 1 if checkpoint else None)
     if checkpoint is None:
@@ -561,6 +544,28 @@ def open_run(args: Args) -> tuple[str, dict | None]:
     for name in experiment:
         setattr(args, name, saved[name])
     return os.path.dirname(path), checkpoint
+
+
+def start_wandb(args: Args, run_dir: str, resuming: bool):
+    """W&B as CleanRL starts it. The run id is kept in the run folder, so a resumed run continues its W&B run."""
+    import wandb
+
+    os.makedirs(run_dir, exist_ok=True)
+    id_path = os.path.join(run_dir, "wandb_id")
+    run_id = open(id_path).read() if resuming and os.path.exists(id_path) else uuid.uuid4().hex
+    with open(id_path, "w") as f:
+        f.write(run_id)
+    wandb.init(
+        project=args.wandb_project_name,
+        entity=args.wandb_entity,
+        sync_tensorboard=True,
+        config=vars(args),
+        name=os.path.basename(run_dir),
+        save_code=True,
+        id=run_id,
+        resume="allow",
+    )
+    return wandb
 
 
 def evaluate(agent, env_id, episodes, seed, greedy, device, video_dir=None) -> dict:
