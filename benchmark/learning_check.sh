@@ -9,7 +9,7 @@
 # MODE=cleanrl: CleanRL's Atari sizes (8 envs x 128 steps, 4 x 4, learning rate 2.5e-4, annealed), where
 #   P3O as specified does not learn (benchmark/README.md, "Does it learn?").
 #
-# The two scripts of a seed run side by side, one core each (OMP_NUM_THREADS=1), about 1.5 hours a seed on
+# The two scripts of a seed run side by side, one core each (OMP_NUM_THREADS=1), about 3 hours a seed on
 # 2 cores. Calling it again skips seeds whose outputs are in benchmark/results/<group>/runs/ and resumes
 # unfinished runs from their checkpoints.
 #
