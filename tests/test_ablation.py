@@ -8,12 +8,10 @@ import sys
 
 import pytest
 import torch
-from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 import p3o_atari_envpool as p3o
 import ppo_atari_envpool as ppo
-
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from helpers import ROOT, hyperparameters, scalars
 
 
 @pytest.fixture
@@ -87,10 +85,7 @@ TINY += ["--update-epochs", "1", "--total-timesteps", "128", "--eval-episodes", 
 
 
 def logged(run_dir):
-    acc = EventAccumulator(run_dir, size_guidance={"scalars": 0})
-    acc.Reload()
-    text = acc.Tensors("hyperparameters/text_summary")[0].tensor_proto.string_val[0].decode()
-    return {tag: [e.value for e in acc.Scalars(tag)] for tag in acc.Tags()["scalars"]}, text
+    return {tag: [v for _, v in points] for tag, points in scalars(run_dir).items()}, hyperparameters(run_dir)
 
 
 def test_ablation_runs_are_named_apart_and_each_change_takes_effect(tmp_path):
@@ -106,12 +101,12 @@ def test_ablation_runs_are_named_apart_and_each_change_takes_effect(tmp_path):
         name = f"p3o_{change.replace('-', '_')}"
         (run_dir,) = glob.glob(str(tmp_path / "runs" / f"Breakout-v5__{name}__5__*"))
         assert os.path.isfile(os.path.join(run_dir, "checkpoint.pt"))
-        scalars, text = logged(run_dir)
+        values, text = logged(run_dir)
         assert f"|exp_name|{name}|" in text
-        assert len(scalars["losses/value_loss"]) == 2  # both iterations
+        assert len(values["losses/value_loss"]) == 2  # both iterations
         # the first rollout is the same as plain P3O's (same seed, same initial agent): beta is the same
         # unless the change is to beta, and the statistic each change acts on moves
-        same_beta = scalars["p3o/beta_mean"][0] == plain["p3o/beta_mean"][0]
+        same_beta = values["p3o/beta_mean"][0] == plain["p3o/beta_mean"][0]
         assert same_beta == (change != "batch-minmax"), change
         acted_on = {"gae": "losses/policy_loss", "value-beta-one": "losses/value_loss", "batch-minmax": "p3o/beta_std"}
-        assert scalars[acted_on[change]][0] != plain[acted_on[change]][0], change
+        assert values[acted_on[change]][0] != plain[acted_on[change]][0], change

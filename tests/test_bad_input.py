@@ -8,8 +8,7 @@ import pytest
 
 import p3o_atari_envpool as p3o
 import ppo_atari_envpool as ppo
-
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from helpers import ROOT
 
 CASES = [
     ({"env_id": "Breakout-v55"}, "--env-id Breakout-v55 is not an envpool environment. Did you mean Breakout-v5, "),

@@ -10,12 +10,11 @@ import sys
 import numpy as np
 import pytest
 import torch
-from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 import p3o_atari_envpool as p3o
 import ppo_atari_envpool as ppo
+from helpers import ROOT, events, hyperparameters, scalars
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCRIPTS = {"ppo": ppo, "p3o": p3o}
 GAMES = ["Breakout-v5", "Qbert-v5"]
 # 3 iterations of 4 envs x 128 steps: long enough for random play to finish a few games
@@ -53,16 +52,6 @@ def train(algo, env_id, workdir, *extra):
     return proc, run_dirs
 
 
-def load_events(run_dir):
-    acc = EventAccumulator(run_dir, size_guidance={"scalars": 0, "histograms": 0, "tensors": 0})
-    acc.Reload()
-    return acc
-
-
-def scalars(acc, tag):
-    return [(e.step, e.value) for e in acc.Scalars(tag)]
-
-
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     out = {}
@@ -86,30 +75,30 @@ def test_run_exits_zero_and_logs_every_tag_with_finite_values(runs, algo, env_id
     assert lines[-1].startswith(f"iteration {ITERATIONS}/{ITERATIONS} global_step={ITERATIONS * 512} SPS=")
     assert "last_return=" in lines[-1]
 
-    acc = load_events(run_dirs[0])
+    logged = scalars(run_dirs[0])
     tags = COMMON_TAGS + (P3O_TAGS if algo == "p3o" else [])
     for tag in tags:
-        points = scalars(acc, tag)
+        points = logged.get(tag, [])
         assert points, f"{tag} is missing"
         assert all(math.isfinite(v) for _, v in points), f"{tag} has non-finite values: {points}"
         if not tag.startswith("charts/episodic"):
             assert [s for s, _ in points] == [512 * i for i in range(1, ITERATIONS + 1)], tag
     if algo == "p3o":
-        hist = acc.Histograms("p3o/beta")
+        hist = events(run_dirs[0]).Histograms("p3o/beta")
         assert len(hist) == ITERATIONS
         for h in hist:
             # min-max per environment: in each iteration of this fixed-seed run some environment's smoothed
             # state importance has its minimum and some its maximum among s_0..s_{T-1}, so beta is exactly 0 and 1
             assert (h.histogram_value.min, h.histogram_value.max) == (0.0, 1.0)
             assert h.histogram_value.num == 128 * 4
-        for _, beta_mean in scalars(acc, "p3o/beta_mean"):
+        for _, beta_mean in logged["p3o/beta_mean"]:
             assert 0.0 <= beta_mean <= 1.0
     else:
-        assert not any(t.startswith("p3o/") for t in acc.Tags()["scalars"])
+        assert not any(t.startswith("p3o/") for t in logged)
 
     # full games: Breakout and Qbert both have several lives, so a game outlasts a life
-    lengths = [v for _, v in scalars(acc, "charts/episodic_length")]
-    returns = [v for _, v in scalars(acc, "charts/episodic_return")]
+    lengths = [v for _, v in logged["charts/episodic_length"]]
+    returns = [v for _, v in logged["charts/episodic_return"]]
     assert min(lengths) > 50 and all(r >= 0 for r in returns)
     # unclipped game scores: Qbert scores in multiples of 25 (clipped rewards would sum to small integers)
     if env_id == "Qbert-v5":
@@ -117,10 +106,10 @@ def test_run_exits_zero_and_logs_every_tag_with_finite_values(runs, algo, env_id
     else:
         assert all(r == int(r) for r in returns)
     # annealed learning rate: 2.5e-4 * (1, 2/3, 1/3)
-    lrs = [v for _, v in scalars(acc, "charts/learning_rate")]
+    lrs = [v for _, v in logged["charts/learning_rate"]]
     np.testing.assert_allclose(lrs, [2.5e-4, 2.5e-4 * 2 / 3, 2.5e-4 / 3], rtol=1e-6)
     # hyperparameters as text, as CleanRL does
-    text = acc.Tensors("hyperparameters/text_summary")[0].tensor_proto.string_val[0].decode()
+    text = hyperparameters(run_dirs[0])
     assert f"|env_id|{env_id}|" in text and "|num_envs|4|" in text
 
 
@@ -154,10 +143,10 @@ def test_same_seed_gives_identical_losses(runs, algo, tmp_path):
     _, first_dirs = runs[algo, "Breakout-v5"]
     proc, second_dirs = train(algo, "Breakout-v5", str(tmp_path), "--torch-deterministic")
     assert proc.returncode == 0, proc.stderr[-3000:]
-    first, second = load_events(first_dirs[0]), load_events(second_dirs[0])
+    first, second = scalars(first_dirs[0]), scalars(second_dirs[0])
     tags = LOSS_TAGS + (P3O_TAGS if algo == "p3o" else [])
     for tag in tags:
-        assert scalars(first, tag) == scalars(second, tag), tag
+        assert first[tag] == second[tag], tag
 
 
 # The fixed-seed Breakout run above (seed 3, TINY settings, CPU), recorded at commit a5e70a8. Changes
@@ -185,9 +174,9 @@ PINNED = {
 def test_fixed_seed_losses_equal_the_pinned_values(runs, algo):
     proc, run_dirs = runs[algo, "Breakout-v5"]
     assert proc.returncode == 0, proc.stderr[-3000:]
-    acc = load_events(run_dirs[0])
+    logged = scalars(run_dirs[0])
     for tag, expected in PINNED[algo].items():
-        got = [v for _, v in scalars(acc, tag)]
+        got = [v for _, v in logged[tag]]
         if tag == "losses/policy_loss":
             np.testing.assert_allclose(got, expected, rtol=0, atol=1e-6, err_msg=tag)
         else:
@@ -208,7 +197,7 @@ def test_evaluation_after_training_logs_each_game(runs, algo):
     assert all(r % 25 == 0 for r in report["returns"]) and max(report["returns"]) >= 25  # unclipped scores
     assert report["mean"] == pytest.approx(np.mean(report["returns"]))
     assert report["std_err"] == pytest.approx(np.std(report["returns"]) / np.sqrt(10))
-    logged = scalars(load_events(run_dirs[0]), "eval/episodic_return")
+    logged = scalars(run_dirs[0])["eval/episodic_return"]
     assert [s for s, _ in logged] == list(range(10))
     np.testing.assert_allclose([v for _, v in logged], report["returns"])
 
@@ -234,9 +223,9 @@ def test_another_seed_gives_other_losses(runs, tmp_path):
     proc, other_dirs = train("p3o", "Breakout-v5", str(tmp_path), "--seed", "4", "--eval-episodes", "0")
     assert proc.returncode == 0, proc.stderr[-3000:]
     (other,) = glob.glob(os.path.join(str(tmp_path), "runs", "Breakout-v5__p3o_atari_envpool__4__*"))
-    first, second = load_events(first_dirs[0]), load_events(other)
+    first, second = scalars(first_dirs[0]), scalars(other)
     for tag in ("losses/value_loss", "losses/policy_loss", "p3o/beta_mean"):
-        assert all(a != b for (_, a), (_, b) in zip(scalars(first, tag), scalars(second, tag), strict=True)), tag
+        assert all(a != b for (_, a), (_, b) in zip(first[tag], second[tag], strict=True)), tag
 
 
 def test_environment_i_is_seeded_with_seed_plus_i():

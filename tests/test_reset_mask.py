@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import ppo_atari_envpool as ppo
+from helpers import scalars
 
 STEPS, N = 700, 3
 
@@ -80,7 +81,6 @@ def train_logging(module, change_masked_steps, tmp_path, monkeypatch, shift_valu
     step (and its log-probability) is replaced by another action, and with `shift_values` the value it
     stores there too. Returns the logged scalars and the number of changed steps."""
     import torch
-    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     made, flipped = [], []
     make_env, original = module.make_env, module.Agent.get_action_and_value
@@ -107,9 +107,7 @@ def train_logging(module, change_masked_steps, tmp_path, monkeypatch, shift_valu
     args = module.Args(env_id="Breakout-v5", num_envs=4, num_steps=128, num_minibatches=2, update_epochs=2)
     args.total_timesteps, args.eval_episodes, args.seed, args.run_name = 1024, 0, 7, name
     module.main(args)
-    acc = EventAccumulator(str(tmp_path / "runs" / name), size_guidance={"scalars": 0})
-    acc.Reload()
-    return {tag: [(e.step, e.value) for e in acc.Scalars(tag)] for tag in acc.Tags()["scalars"]}, sum(flipped)
+    return scalars(tmp_path / "runs" / name), sum(flipped)
 
 
 # PPO: the stored action and value of a reset step both change. P3O: only the action, because the value of

@@ -12,12 +12,11 @@ import sys
 import numpy as np
 import pytest
 import torch
-from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 import p3o_atari_envpool as p3o
 import ppo_atari_envpool as ppo
+from helpers import ROOT, scalars
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCRIPTS = {"ppo": ppo, "p3o": p3o}
 BATCH, ITERATIONS, UPDATES = 4 * 32, 10, 2  # UPDATES: minibatches x epochs per iteration
 FLAGS = ["--env-id", "Breakout-v5", "--num-envs", "4", "--num-steps", "32", "--num-minibatches", "2"]
@@ -46,13 +45,6 @@ def start_and_signal(algo, cwd, sig, at_iteration, *extra):
     return proc.returncode, "".join(lines) + out, err
 
 
-def points(run_dir):
-    """tag -> [(step, value)] as TensorBoard shows the folder (purged points left out)."""
-    acc = EventAccumulator(run_dir, size_guidance={"scalars": 0})
-    acc.Reload()
-    return {tag: [(e.step, e.value) for e in acc.Scalars(tag)] for tag in acc.Tags()["scalars"]}
-
-
 def check_resumed(algo, tmp_path, run_dir, before, checkpoint_iteration, how):
     """Resume the run; then the points up to the checkpoint are the killed run's, and every later
     iteration has its points exactly once."""
@@ -61,7 +53,7 @@ def check_resumed(algo, tmp_path, run_dir, before, checkpoint_iteration, how):
     assert f"resuming {run_dir} after iteration {checkpoint_iteration}" in resumed.stdout
     assert f"iteration {ITERATIONS}/{ITERATIONS} global_step={BATCH * ITERATIONS} " in resumed.stdout
     assert f"iteration {checkpoint_iteration}/" not in resumed.stdout
-    after = points(str(tmp_path / run_dir))
+    after = scalars(str(tmp_path / run_dir))
     cut = checkpoint_iteration * BATCH
     for tag in PER_ITERATION + ["charts/episodic_return", "charts/episodic_length"]:
         kept = [p for p in before.get(tag, []) if p[0] <= cut]
@@ -97,7 +89,7 @@ def test_signal_checkpoints_the_iteration_it_ends_and_the_run_resumes(algo, sig,
     saved = torch.load(tmp_path / run_dir / "checkpoint.pt", weights_only=True)
     assert saved["iteration"] == iteration and not saved["finished"]
     assert not (tmp_path / run_dir / "checkpoint.pt.tmp").exists()
-    before = points(str(tmp_path / run_dir))
+    before = scalars(str(tmp_path / run_dir))
     assert max(s for s, _ in before["losses/value_loss"]) == iteration * BATCH  # logged up to the checkpoint
     # SIGINT's run goes on as a sweep continues it: the same command again, with --auto-resume
     how = ("--run-name", "r", "--auto-resume") if sig == signal.SIGINT else ("--resume", run_dir)
@@ -110,7 +102,7 @@ def test_killed_run_resumes_from_its_last_periodic_checkpoint(algo, tmp_path):
     run_dir = os.path.join("runs", "k")
     assert rc == -signal.SIGKILL
     assert not (tmp_path / run_dir / "checkpoint.pt.tmp").exists()
-    before = points(str(tmp_path / run_dir))
+    before = scalars(str(tmp_path / run_dir))
     logged = max(s for s, _ in before["losses/value_loss"]) // BATCH  # the last iteration the killed run logged
     saved = torch.load(tmp_path / run_dir / "checkpoint.pt", weights_only=True)["iteration"]
     # the checkpoint after the last multiple of 3 it logged (or the one before, when killed between the two)
@@ -160,7 +152,7 @@ def test_two_resumes_of_one_checkpoint_give_the_same_numbers(stopped_run, tmp_pa
         proc = run("ppo", tmp_path, "--resume", f"runs/{copy}")
         assert proc.returncode == 0, proc.stderr[-3000:]
         results.append(
-            {tag: points(str(tmp_path / "runs" / copy))[tag] for tag in ("losses/value_loss", "losses/entropy")}
+            {tag: scalars(str(tmp_path / "runs" / copy))[tag] for tag in ("losses/value_loss", "losses/entropy")}
         )
     assert results[0] == results[1]
 

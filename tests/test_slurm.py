@@ -18,11 +18,10 @@ import tempfile
 import time
 
 import pytest
-from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from helpers import ROOT, scalars
 
 pytestmark = pytest.mark.slurm
-
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SWEEP = os.path.join(ROOT, "benchmark", "p3o_vs_ppo.sh")
 DAEMONS = ("munged", "slurmctld", "slurmd", "sbatch", "scontrol", "scancel", "sinfo")
 
@@ -165,9 +164,7 @@ def submitted(proc):
 
 
 def iteration_steps(run_dir, tag="losses/value_loss"):
-    acc = EventAccumulator(str(run_dir), size_guidance={"scalars": 0})
-    acc.Reload()
-    return [e.step for e in acc.Scalars(tag)]
+    return [step for step, _ in scalars(run_dir)[tag]]
 
 
 TINY = "--num-envs 4 --num-steps 32 --num-minibatches 2 --update-epochs 1 --no-cuda"

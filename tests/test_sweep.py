@@ -9,7 +9,8 @@ import sys
 
 import torch
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+from helpers import ROOT
+
 SWEEP = os.path.join(ROOT, "benchmark", "p3o_vs_ppo.sh")
 THESIS_GAMES = ["Breakout-v5", "Freeway-v5", "Seaquest-v5", "Riverraid-v5", "Qbert-v5", "MsPacman-v5"]
 

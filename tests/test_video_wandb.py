@@ -14,12 +14,11 @@ import imageio_ffmpeg
 import numpy as np
 import pytest
 import torch
-from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 import p3o_atari_envpool as p3o
 import ppo_atari_envpool as ppo
+from helpers import ROOT, scalars
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TINY = ["--env-id", "Breakout-v5", "--num-envs", "4", "--num-steps", "64", "--num-minibatches", "2"]
 TINY += ["--update-epochs", "1", "--total-timesteps", "768", "--seed", "2"]  # 3 iterations
 
@@ -123,10 +122,9 @@ def test_tracked_run_mirrors_tensorboard_in_wandb(tracked):
     (run,) = offline_run(str(cwd / "wandb"))
     assert run["id"] == (run_dir / "wandb_id").read_text() and run["name"] == "v"
     assert run["config"]["env_id"] == "Breakout-v5" and run["config"]["ewma_alpha"] == 0.9
-    acc = EventAccumulator(str(run_dir), size_guidance={"scalars": 0})
-    acc.Reload()
+    points = scalars(run_dir)
     for tag in ("charts/episodic_return", "losses/value_loss", "p3o/beta_mean", "eval/episodic_return"):
-        logged = [e.value for e in acc.Scalars(tag)]
+        logged = [v for _, v in points[tag]]
         mirrored = [row[tag] for row in run["history"] if tag in row]
         assert logged and np.allclose(mirrored, logged, rtol=1e-6), tag
     videos = {k: v for row in run["history"] for k, v in row.items() if k.startswith("videos/")}

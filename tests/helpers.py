@@ -1,0 +1,25 @@
+"""What several test files share: the repository's root and a run's TensorBoard output read back."""
+
+import os
+
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def events(run_dir) -> EventAccumulator:
+    """Every scalar, histogram and text a run folder holds, as TensorBoard shows it (purged points left out)."""
+    acc = EventAccumulator(str(run_dir), size_guidance={"scalars": 0, "histograms": 0, "tensors": 0})
+    acc.Reload()
+    return acc
+
+
+def scalars(run_dir) -> dict[str, list[tuple[int, float]]]:
+    """tag -> [(step, value), ...] for every scalar the run logged."""
+    acc = events(run_dir)
+    return {tag: [(e.step, e.value) for e in acc.Scalars(tag)] for tag in acc.Tags()["scalars"]}
+
+
+def hyperparameters(run_dir) -> str:
+    """The `|name|value|` table the scripts log as text, as CleanRL does."""
+    return events(run_dir).Tensors("hyperparameters/text_summary")[0].tensor_proto.string_val[0].decode()
