@@ -61,6 +61,9 @@ class Args:
     """per-run statistic: the mean of the run's last K values of the tag (0: of all its values)"""
     table_name: str = "table"
     """the table is written to OUT/TABLE_NAME.md and .csv"""
+    window_steps: int = 0
+    """also a table of the tag over training, OUT/TABLE_NAME_windows.md and .csv: per run the mean of its values
+    in each window [k·W, (k+1)·W) of W env steps, then mean ± s.e. over runs (0: no such table)"""
     group_regex: str | None = None
     """regex with named groups `env` and `algo`, searched in each run folder's name (instead of the logged ids)"""
     figures: bool = True
@@ -202,6 +205,62 @@ def write_table(table, out, name, tag, last) -> str:
     return markdown
 
 
+def summarise_windows(runs, tag, window) -> dict:
+    """(env, algo) -> per window k of steps [k·window, (k+1)·window): (mean, standard error, n) over the runs
+    with values there of each run's mean in the window, and the number of values (games) in all; None for a
+    window no run has values in. Standard error as in `summarise`."""
+    per_group = {}
+    for run in runs:
+        if tag in run.scalars and len(run.scalars[tag][0]):
+            steps, values = run.scalars[tag]
+            index = (steps // window).astype(int)
+            means = {k: (float(values[index == k].mean()), int((index == k).sum())) for k in np.unique(index)}
+            per_group.setdefault((run.env, run.algo), []).append(means)
+    table = {}
+    for key, per_run in sorted(per_group.items()):
+        cells = []
+        for k in range(max(max(means) for means in per_run) + 1):
+            x = np.array([means[k][0] for means in per_run if k in means])
+            count = sum(means[k][1] for means in per_run if k in means)
+            cells.append((float(x.mean()), float(x.std() / np.sqrt(len(x))), len(x), count) if len(x) else None)
+        table[key] = cells
+    return table
+
+
+def steps_label(steps: int) -> str:
+    return "0" if steps == 0 else f"{steps / 1e6:g}M" if steps % 1_000_000 == 0 else f"{steps / 1e3:g}k"
+
+
+def number(x: float) -> str:
+    return f"{x:.1f}" if abs(x) >= 10 else f"{x:.2f}"  # game scores to 0.1, small ones (β, early returns) to 0.01
+
+
+def write_window_table(table, out, name, tag, window) -> str:
+    windows = max(len(cells) for cells in table.values())
+    labels = [f"{steps_label(k * window)}–{steps_label((k + 1) * window)}" for k in range(windows)]
+    lines = [
+        f"`{tag}` per window of {window:,} env steps: per run the mean of its values in the window; mean ± standard"
+        " error (population std / √n) over n runs, and the number of values (games) in brackets.",
+        "",
+        "| game | algorithm | " + " | ".join(labels) + " |",
+        "|---|---|" + "---|" * windows,
+    ]
+    for (env, algo), cells in table.items():
+        text = [f"{number(c[0])} ± {number(c[1])} (n={c[2]}, {c[3]})" if c else "–" for c in cells]
+        lines.append(f"| {env} | {algo} | " + " | ".join(text + ["–"] * (windows - len(cells))) + " |")
+    markdown = "\n".join(lines) + "\n"
+    with open(os.path.join(out, f"{name}_windows.md"), "w") as f:
+        f.write(markdown)
+    with open(os.path.join(out, f"{name}_windows.csv"), "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["game", "algorithm", "tag", "window_start", "window_end", "n", "mean", "std_err", "values"])
+        for (env, algo), cells in table.items():
+            for k, c in enumerate(cells):
+                if c:
+                    writer.writerow([env, algo, tag, k * window, (k + 1) * window, c[2], c[0], c[1], c[3]])
+    return markdown
+
+
 def last10_average(steps, values):
     """At each logged game, the average return of the last 10 games (thesis fig. 5.5)."""
     cumulative = np.concatenate([[0.0], np.cumsum(values)])
@@ -332,8 +391,11 @@ def across_games(runs, tag, last, p3o, ppo, reps, seed) -> tuple[str | None, lis
 
 
 def main(args: Args) -> dict:
-    if args.last < 0 or args.grid_points < 2 or args.bootstrap_reps < 1:
-        sys.exit("error: --last must be 0 or more, --grid-points at least 2 and --bootstrap-reps at least 1.")
+    if args.last < 0 or args.window_steps < 0 or args.grid_points < 2 or args.bootstrap_reps < 1:
+        sys.exit(
+            "error: --last and --window-steps must be 0 or more, --grid-points at least 2 and --bootstrap-reps"
+            " at least 1."
+        )
     if args.group_regex:
         try:
             if not {"env", "algo"} <= set(re.compile(args.group_regex).groupindex):
@@ -355,6 +417,10 @@ def main(args: Args) -> dict:
         print(f"wrote {os.path.join(args.out, args.table_name)}.md and .csv")
     else:
         print(f"no run has '{args.tag}'; no table written", file=sys.stderr)
+    result["windows"] = summarise_windows(runs, args.tag, args.window_steps) if args.window_steps else {}
+    if result["windows"]:
+        print(write_window_table(result["windows"], args.out, args.table_name, args.tag, args.window_steps))
+        print(f"wrote {os.path.join(args.out, args.table_name)}_windows.md and .csv")
     comparison, notes = across_games(
         runs, args.tag, args.last, args.p3o_name, args.ppo_name, args.bootstrap_reps, args.seed
     )

@@ -87,6 +87,34 @@ def test_last_k_statistic(root, tmp_path):
     assert (mean, se, n) == pytest.approx((np.mean(expected), np.std(expected) / np.sqrt(3), 3))
 
 
+def test_window_table_means_per_run_then_over_runs(root, tmp_path):
+    out = str(tmp_path / "out")
+    args = results.Args(roots=(root,), out=out, tag="charts/episodic_return", window_steps=50_000, figures=False)
+    windows = results.main(args)["windows"]["Breakout-v5", PPO]
+    # by hand, seed s logging step/1000 + s every 1000 s steps up to 100000, windows [0, 50k), [50k, 100k),
+    # [100k, 150k): seed 1 means 26 (49 games), 75.5 (50), 101 (1); seed 2: 27 (24), 76 (25), 102 (1);
+    # seed 3: 28.5 (16), 78 (17), none (its last step is 99000)
+    expected = [[26, 27, 28.5], [75.5, 76, 78], [101, 102]]
+    counts = [89, 92, 2]
+    assert len(windows) == 3
+    for (mean, se, n, count), x, games in zip(windows, expected, counts, strict=True):
+        assert (mean, se, n, count) == pytest.approx((np.mean(x), np.std(x) / np.sqrt(len(x)), len(x), games))
+    markdown = open(os.path.join(out, "table_windows.md")).read()
+    assert "| game | algorithm | 0–50k | 50k–100k | 100k–150k |" in markdown
+    assert (
+        f"| Breakout-v5 | {PPO} | 27.2 ± 0.59 (n=3, 89) | 76.5 ± 0.62 (n=3, 92) | 101.5 ± 0.35 (n=2, 2) |" in markdown
+    )
+    with open(os.path.join(out, "table_windows.csv")) as f:
+        rows = [r for r in csv.DictReader(f) if r["game"] == "Breakout-v5" and r["algorithm"] == PPO]
+    assert [(int(r["window_start"]), int(r["n"]), int(r["values"])) for r in rows] == [
+        (0, 3, 89),
+        (50_000, 3, 92),
+        (100_000, 2, 2),
+    ]
+    with pytest.raises(SystemExit, match="--window-steps must be 0 or more"):
+        results.main(results.Args(roots=(root,), out=out, window_steps=-1))
+
+
 def test_group_regex_overrides_grouping(root, tmp_path):
     result = results.main(
         results.Args(
