@@ -16,6 +16,7 @@ import glob
 import os
 import re
 import sys
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -365,13 +366,16 @@ def across_games(runs, tag, last, p3o, ppo, reps, seed) -> tuple[str | None, lis
         notes.append(f"runs per game differ; the first {n} of each game and algorithm are used")
     scores = {algo: np.array([[per[env][algo][i] for env in games] for i in range(n)]) for algo in (p3o, ppo)}
     state = np.random.RandomState(seed)
-    iqm, iqm_ci = rly.get_interval_estimates(
-        scores, lambda x: np.array([metrics.aggregate_iqm(x)]), reps=reps, random_state=state
-    )
     pair = f"{p3o},{ppo}"
-    poi, poi_ci = rly.get_interval_estimates(
-        {pair: (scores[p3o], scores[ppo])}, metrics.probability_of_improvement, reps=reps, random_state=state
-    )
+    with warnings.catch_warnings():
+        # rliable passes the seeded RandomState on to arch's bootstrap, which warns that the argument is deprecated
+        warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
+        iqm, iqm_ci = rly.get_interval_estimates(
+            scores, lambda x: np.array([metrics.aggregate_iqm(x)]), reps=reps, random_state=state
+        )
+        poi, poi_ci = rly.get_interval_estimates(
+            {pair: (scores[p3o], scores[ppo])}, metrics.probability_of_improvement, reps=reps, random_state=state
+        )
     lines = [
         f"Across {len(games)} game(s) ({', '.join(games)}), {n} run(s) each, `{tag}`"
         + (f" (last {last})" if last else "")
