@@ -19,6 +19,21 @@
 # Knobs: MODE, SEEDS, TOTAL_TIMESTEPS (1000000).
 set -euo pipefail
 
+# the tables and figures of every committed run of the group (after each seed, so a session that ends
+# between seeds leaves them up to date)
+tables() {
+    local out=$1 steps=$2
+    uv run python benchmark/results.py "$out/runs" --out "$out"
+    # the training return (last 100 games, and per fifth of training) and P3O's mean beta per fifth of training
+    uv run python benchmark/results.py "$out/runs" --out "$out" --tag charts/episodic_return --last 100 \
+        --table-name train_last100 --window-steps "$((steps / 5))" --no-figures
+    uv run python benchmark/results.py "$out/runs" --out "$out" --tag p3o/beta_mean --table-name beta \
+        --window-steps "$((steps / 5))" --no-figures
+    echo "tables: $out/table.md (10-game evaluation), $out/train_last100.md (last 100 training games),"
+    echo "        $out/train_last100_windows.md (training return per fifth of training), $out/beta_windows.md"
+    echo "figures: $out/*.png; runs: $out/runs/"
+}
+
 main() {
     cd "$(dirname "$0")/.."
     local mode=${MODE:-thesis} steps=${TOTAL_TIMESTEPS:-1000000} seeds=${SEEDS:-1 2 3}
@@ -35,7 +50,7 @@ main() {
             echo "error: MODE must be thesis or cleanrl, got '$mode'." >&2
             exit 1 ;;
     esac
-    local out=benchmark/results/$group logs=runs/$group/logs
+    local out=benchmark/results/$group logs=runs/$group/logs ran=0
     mkdir -p "$logs" "$out/runs"
     for seed in $seeds; do
         local pids=() algo
@@ -72,16 +87,11 @@ main() {
             cp "runs/$group/$run"/events.out.tfevents.* "runs/$group/$run/eval.json" "$out/runs/$run/"
             [ "$algo" = random ] || cp "$logs/${algo}_$seed.log" "$out/runs/$run/train.log"
         done
+        echo "seed $seed: done; commit $out/ now"
+        tables "$out" "$steps"
+        ran=1
     done
-    uv run python benchmark/results.py "$out/runs" --out "$out"
-    # the training return (last 100 games, and per fifth of training) and P3O's mean beta per fifth of training
-    uv run python benchmark/results.py "$out/runs" --out "$out" --tag charts/episodic_return --last 100 \
-        --table-name train_last100 --window-steps "$((steps / 5))" --no-figures
-    uv run python benchmark/results.py "$out/runs" --out "$out" --tag p3o/beta_mean --table-name beta \
-        --window-steps "$((steps / 5))" --no-figures
-    echo "tables: $out/table.md (10-game evaluation), $out/train_last100.md (last 100 training games),"
-    echo "        $out/train_last100_windows.md (training return per fifth of training), $out/beta_windows.md"
-    echo "figures: $out/*.png; runs: $out/runs/"
+    if [ "$ran" = 0 ]; then tables "$out" "$steps"; fi
 }
 
 main "$@"
