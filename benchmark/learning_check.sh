@@ -10,32 +10,38 @@
 #   P3O as specified does not learn (benchmark/README.md, "Does it learn?").
 #
 # The two scripts of a seed run side by side, one core each (OMP_NUM_THREADS=1), about 3 hours a seed on
-# 2 cores. Calling it again skips seeds whose outputs are in benchmark/results/<group>/runs/ and resumes
-# unfinished runs from their checkpoints.
+# 2 cores. Runs (checkpoints, logs) go under runs/<group>/ in the current folder, as the scripts' do.
+# Calling it again skips seeds whose outputs are in OUT/runs/ and resumes unfinished runs from their
+# checkpoints.
 #
 #   bash benchmark/learning_check.sh                          # seeds 1 2 3, thesis regime
 #   SEEDS="4 5" bash benchmark/learning_check.sh              # more seeds
 #   MODE=cleanrl SEEDS=1 bash benchmark/learning_check.sh     # the CleanRL-size check
-# Knobs: MODE, SEEDS, TOTAL_TIMESTEPS (1000000).
+# Knobs: MODE, SEEDS, TOTAL_TIMESTEPS (1000000), OUT (benchmark/results/<group> of this repository),
+# PYTHON (how to start python; default "uv run python", with --project when run from another folder).
 set -euo pipefail
 
 # the tables and figures of every committed run of the group (after each seed, so a session that ends
 # between seeds leaves them up to date)
 tables() {
     local out=$1 steps=$2
-    uv run python benchmark/results.py "$out/runs" --out "$out"
+    $PYTHON "${base}benchmark/results.py" "$out/runs" --out "$out"
     # the training return (last 100 games, and per fifth of training) and P3O's mean beta per fifth of training
-    uv run python benchmark/results.py "$out/runs" --out "$out" --tag charts/episodic_return --last 100 \
+    $PYTHON "${base}benchmark/results.py" "$out/runs" --out "$out" --tag charts/episodic_return --last 100 \
         --table-name train_last100 --window-steps "$((steps / 5))" --no-figures
-    uv run python benchmark/results.py "$out/runs" --out "$out" --tag p3o/beta_mean --table-name beta \
+    $PYTHON "${base}benchmark/results.py" "$out/runs" --out "$out" --tag p3o/beta_mean --table-name beta \
         --window-steps "$((steps / 5))" --no-figures
     echo "tables: $out/table.md (10-game evaluation), $out/train_last100.md (last 100 training games),"
     echo "        $out/train_last100_windows.md (training return per fifth of training), $out/beta_windows.md"
     echo "figures: $out/*.png; runs: $out/runs/"
 }
 
+# this repository, by the shortest path from the current folder
+root=$(cd "$(dirname "$0")/.." && pwd)
+if [ "$root" = "$PWD" ]; then base=""; else base="$root/"; fi
+if [ "$root" = "$PWD" ]; then PYTHON=${PYTHON:-"uv run python"}; else PYTHON=${PYTHON:-"uv run --project $root python"}; fi
+
 main() {
-    cd "$(dirname "$0")/.."
     local mode=${MODE:-thesis} steps=${TOTAL_TIMESTEPS:-1000000} seeds=${SEEDS:-1 2 3}
     local group sizes
     case "$mode" in
@@ -50,7 +56,17 @@ main() {
             echo "error: MODE must be thesis or cleanrl, got '$mode'." >&2
             exit 1 ;;
     esac
-    local out=benchmark/results/$group logs=runs/$group/logs ran=0
+    if ! [[ "$steps" =~ ^[1-9][0-9]*$ ]]; then
+        echo "error: TOTAL_TIMESTEPS must be a positive whole number, got '$steps'." >&2
+        exit 1
+    fi
+    for seed in $seeds; do
+        if ! [[ "$seed" =~ ^[0-9]+$ ]]; then
+            echo "error: SEEDS must be whole numbers, got '$seed'." >&2
+            exit 1
+        fi
+    done
+    local out=${OUT:-${base}benchmark/results/$group} logs=runs/$group/logs ran=0
     mkdir -p "$logs" "$out/runs"
     for seed in $seeds; do
         local pids=() algo
@@ -62,7 +78,7 @@ main() {
         for algo in ppo p3o; do
             local name="$group/Breakout-v5__${algo}_atari_envpool__$seed"
             echo "seed $seed: $algo -> runs/$name (log $logs/${algo}_$seed.log)"
-            OMP_NUM_THREADS=1 uv run python "${algo}_atari_envpool.py" --env-id Breakout-v5 --seed "$seed" \
+            OMP_NUM_THREADS=1 $PYTHON "${base}${algo}_atari_envpool.py" --env-id Breakout-v5 --seed "$seed" \
                 "${sizes[@]}" --total-timesteps "$steps" --eval-episodes 10 --run-name "$name" --auto-resume \
                 >>"$logs/${algo}_$seed.log" 2>&1 &
             pids+=($!)
@@ -75,7 +91,7 @@ main() {
         fi
         local random_dir="runs/$group/Breakout-v5__random__$seed"
         if [ ! -f "$random_dir/eval.json" ]; then
-            uv run python benchmark/evaluate.py --random --env-id Breakout-v5 --episodes 10 \
+            $PYTHON "${base}benchmark/evaluate.py" --random --env-id Breakout-v5 --episodes 10 \
                 --seed "$((seed + 1000000))" --run-dir "$random_dir"
         fi
         # the small outputs (event files, eval.json, logs) are committed; checkpoints stay in runs/

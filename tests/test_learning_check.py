@@ -1,0 +1,100 @@
+"""benchmark/learning_check.sh end to end on the CPU: two seeds of one iteration each at the thesis regime's
+sizes, its outputs read back (eval.json, event files, tables), a second call that skips both seeds, and
+its refusals."""
+
+import csv
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from helpers import ROOT, hyperparameters
+
+CHECK = os.path.join(ROOT, "benchmark", "learning_check.sh")
+STEPS = 4096  # one iteration of 16 envs x 256 steps
+
+
+def learning_check(cwd, out, **knobs):
+    env = os.environ | {"TOTAL_TIMESTEPS": str(STEPS), "SEEDS": "1 2", "OUT": str(out), "PYTHON": sys.executable}
+    return subprocess.run(["bash", CHECK], cwd=cwd, env=env | knobs, capture_output=True, text=True, timeout=1500)
+
+
+@pytest.fixture(scope="module")
+def checked(tmp_path_factory):
+    cwd = tmp_path_factory.mktemp("check")
+    out = cwd / "out"
+    first = learning_check(cwd, out)
+    second = learning_check(cwd, out)
+    return cwd, out, first, second
+
+
+def test_each_seed_trains_both_scripts_in_the_thesis_regime_and_is_evaluated(checked):
+    cwd, out, first, _ = checked
+    assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
+    for seed in (1, 2):
+        games = [seed + 1_000_000 + i for i in range(10)]
+        for algo in ("ppo", "p3o"):
+            run = out / "runs" / f"Breakout-v5__{algo}_atari_envpool__{seed}"
+            report = json.loads((run / "eval.json").read_text())
+            assert report["algorithm"] == algo and report["seeds"] == games and len(report["returns"]) == 10
+            assert f"iteration 1/1 global_step={STEPS} " in (run / "train.log").read_text()
+            text = hyperparameters(run)
+            for row in ("num_envs|16", "num_steps|256", "num_minibatches|4", "update_epochs|8", "learning_rate|0.001"):
+                assert f"|{row}|" in text, row
+            assert "|anneal_lr|False|" in text and f"|seed|{seed}|" in text and f"|total_timesteps|{STEPS}|" in text
+            # the checkpoint stays in runs/ of the current folder, not among the committed outputs
+            assert (cwd / "runs" / "learning_check" / run.name / "checkpoint.pt").is_file()
+            assert not (run / "checkpoint.pt").exists()
+        random = json.loads((out / "runs" / f"Breakout-v5__random__{seed}" / "eval.json").read_text())
+        assert random["seeds"] == games and len(random["returns"]) == 10
+
+
+def test_tables_come_after_each_seed_and_count_both_seeds(checked):
+    _, out, first, _ = checked
+    lines = first.stdout.splitlines()
+    seed1_done = lines.index(f"seed 1: done; commit {out}/ now")
+    seed2_start = next(i for i, line in enumerate(lines) if line.startswith("seed 2: ppo -> "))
+    assert seed1_done < next(i for i, line in enumerate(lines) if line.startswith("tables: ")) < seed2_start
+    with open(out / "table.csv") as f:
+        rows = {r["algorithm"]: r for r in csv.DictReader(f)}
+    for algo, folder in [("ppo_atari_envpool", "ppo_atari_envpool"), ("random", "random")]:
+        means = [
+            json.loads((out / "runs" / f"Breakout-v5__{folder}__{s}" / "eval.json").read_text())["mean"] for s in (1, 2)
+        ]
+        assert int(rows[algo]["n"]) == 2 and float(rows[algo]["mean"]) == pytest.approx(np.mean(means))
+    assert int(rows["p3o_atari_envpool"]["n"]) == 2
+    with open(out / "beta_windows.csv") as f:
+        beta = list(csv.DictReader(f))
+    assert beta and all(r["algorithm"] == "p3o_atari_envpool" and int(r["n"]) == 2 for r in beta)
+    assert {int(r["window_end"]) - int(r["window_start"]) for r in beta} == {STEPS // 5}
+    with open(out / "train_last100_windows.csv") as f:
+        assert {r["algorithm"] for r in csv.DictReader(f)} == {"ppo_atari_envpool", "p3o_atari_envpool"}
+    assert (out / "Breakout-v5__beta_mean.png").is_file() and (out / "train_last100.md").is_file()
+
+
+def test_a_second_call_skips_finished_seeds_and_remakes_the_tables(checked):
+    cwd, out, _, second = checked
+    assert second.returncode == 0, second.stdout[-3000:] + second.stderr[-3000:]
+    for seed in (1, 2):
+        assert f"seed {seed}: done (its outputs are in {out}/runs/)" in second.stdout
+    assert " -> " not in second.stdout and "tables: " in second.stdout
+    # nothing was started: each training log holds one run
+    for log in (cwd / "runs" / "learning_check" / "logs").iterdir():
+        assert log.read_text().count(f"iteration 1/1 global_step={STEPS} ") == 1, log
+
+
+@pytest.mark.parametrize(
+    "knobs,sentence",
+    [
+        ({"MODE": "atari"}, "error: MODE must be thesis or cleanrl, got 'atari'."),
+        ({"TOTAL_TIMESTEPS": "1e6"}, "error: TOTAL_TIMESTEPS must be a positive whole number, got '1e6'."),
+        ({"SEEDS": "1 two"}, "error: SEEDS must be whole numbers, got 'two'."),
+    ],
+)
+def test_bad_knobs_are_refused_before_anything_runs(knobs, sentence, tmp_path):
+    proc = learning_check(tmp_path, tmp_path / "out", **knobs)
+    assert proc.returncode == 1 and proc.stderr.strip() == sentence and proc.stdout == ""
+    assert os.listdir(tmp_path) == []
