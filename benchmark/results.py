@@ -241,7 +241,8 @@ def write_window_table(table, out, name, tag, window) -> str:
     labels = [f"{steps_label(k * window)}–{steps_label((k + 1) * window)}" for k in range(windows)]
     lines = [
         f"`{tag}` per window of {window:,} env steps: per run the mean of its values in the window; mean ± standard"
-        " error (population std / √n) over n runs, and the number of values (games) in brackets.",
+        " error (population std / √n) over n runs, and in brackets the number of values (games for episodic"
+        " returns, iterations for losses and β).",
         "",
         "| game | algorithm | " + " | ".join(labels) + " |",
         "|---|---|" + "---|" * windows,
