@@ -38,8 +38,11 @@ tables() {
 
 # this repository, by the shortest path from the current folder
 root=$(cd "$(dirname "$0")/.." && pwd)
-if [ "$root" = "$PWD" ]; then base=""; else base="$root/"; fi
-if [ "$root" = "$PWD" ]; then PYTHON=${PYTHON:-"uv run python"}; else PYTHON=${PYTHON:-"uv run --project $root python"}; fi
+if [ "$root" = "$PWD" ]; then
+    base="" PYTHON=${PYTHON:-"uv run python"}
+else
+    base="$root/" PYTHON=${PYTHON:-"uv run --project $root python"}
+fi
 
 main() {
     local mode=${MODE:-thesis} steps=${TOTAL_TIMESTEPS:-1000000} seeds=${SEEDS:-1 2 3}

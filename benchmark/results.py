@@ -169,11 +169,14 @@ def summarise(runs, tag, last) -> tuple[dict, list[str]]:
             problems.append(f"{run.path}: no '{tag}' values, left out of the table")
             continue
         per_group.setdefault((run.env, run.algo), []).append(stat)
-    table = {}
-    for key, stats in sorted(per_group.items()):
-        x = np.array(stats)
-        table[key] = (float(x.mean()), float(x.std() / np.sqrt(len(x))), len(x))
-    return table, problems
+    return {key: mean_se(stats) for key, stats in sorted(per_group.items())}, problems
+
+
+def mean_se(stats) -> tuple[float, float, int]:
+    """Mean, standard error with the population standard deviation (std / sqrt(n), as the thesis's
+    table 5.1) and n of per-run statistics."""
+    x = np.array(stats)
+    return float(x.mean()), float(x.std() / np.sqrt(len(x))), len(x)
 
 
 def write_table(table, out, name, tag, last) -> str:
@@ -207,9 +210,9 @@ def write_table(table, out, name, tag, last) -> str:
 
 
 def summarise_windows(runs, tag, window) -> dict:
-    """(env, algo) -> per window k of steps [k·window, (k+1)·window): (mean, standard error, n) over the runs
-    with values there of each run's mean in the window, and the number of values (games) in all; None for a
-    window no run has values in. Standard error as in `summarise`."""
+    """(env, algo) -> per window k of steps [k·window, (k+1)·window): `mean_se` over the runs with values
+    there of each run's mean in the window, and the number of values in all; None for a window no run has
+    values in."""
     per_group = {}
     for run in runs:
         if tag in run.scalars and len(run.scalars[tag][0]):
@@ -221,9 +224,8 @@ def summarise_windows(runs, tag, window) -> dict:
     for key, per_run in sorted(per_group.items()):
         cells = []
         for k in range(max(max(means) for means in per_run) + 1):
-            x = np.array([means[k][0] for means in per_run if k in means])
-            count = sum(means[k][1] for means in per_run if k in means)
-            cells.append((float(x.mean()), float(x.std() / np.sqrt(len(x))), len(x), count) if len(x) else None)
+            there = [means[k] for means in per_run if k in means]
+            cells.append((*mean_se([m for m, _ in there]), sum(c for _, c in there)) if there else None)
         table[key] = cells
     return table
 
