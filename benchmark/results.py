@@ -179,6 +179,10 @@ def mean_se(stats) -> tuple[float, float, int]:
     return float(x.mean()), float(x.std() / np.sqrt(len(x))), len(x)
 
 
+def number(x: float) -> str:
+    return f"{x:.1f}" if abs(x) >= 10 else f"{x:.2f}"  # game scores to 0.1, small ones (β, early returns) to 0.01
+
+
 def write_table(table, out, name, tag, last) -> str:
     envs = sorted({env for env, _ in table})
     algos = sorted({algo for _, algo in table})
@@ -194,7 +198,7 @@ def write_table(table, out, name, tag, last) -> str:
         for algo in algos:
             if (env, algo) in table:
                 mean, se, n = table[env, algo]
-                cells.append(f"{mean:.1f} ± {se:.1f} (n={n})")
+                cells.append(f"{number(mean)} ± {number(se)} (n={n})")
             else:
                 cells.append("–")
         lines.append(f"| {env} | " + " | ".join(cells) + " |")
@@ -232,10 +236,6 @@ def summarise_windows(runs, tag, window) -> dict:
 
 def steps_label(steps: int) -> str:
     return "0" if steps == 0 else f"{steps / 1e6:g}M" if steps % 1_000_000 == 0 else f"{steps / 1e3:g}k"
-
-
-def number(x: float) -> str:
-    return f"{x:.1f}" if abs(x) >= 10 else f"{x:.2f}"  # game scores to 0.1, small ones (β, early returns) to 0.01
 
 
 def write_window_table(table, out, name, tag, window) -> str:
