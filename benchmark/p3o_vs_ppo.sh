@@ -12,6 +12,7 @@
 # Knobs (environment variables):
 #   GAMES            envpool ids (default: the thesis's six games)
 #   SEEDS            seeds (default: 1 2 ... 10)
+#   ALGOS            which scripts: ppo, p3o or both (default: "ppo p3o")
 #   TOTAL_TIMESTEPS  steps per run (default: 20000000)
 #   EXTRA_ARGS       more flags for both scripts, e.g. "--num-envs 64"
 #   WORKERS          runs at a time: local processes, or the array's % limit under Slurm (default: 1)
@@ -23,6 +24,7 @@ set -euo pipefail
 
 GAMES=${GAMES:-"Breakout-v5 Freeway-v5 Seaquest-v5 Riverraid-v5 Qbert-v5 MsPacman-v5"}
 SEEDS=${SEEDS:-"1 2 3 4 5 6 7 8 9 10"}
+ALGOS=${ALGOS:-"ppo p3o"}
 TOTAL_TIMESTEPS=${TOTAL_TIMESTEPS:-20000000}
 EXTRA_ARGS=${EXTRA_ARGS:-}
 WORKERS=${WORKERS:-1}
@@ -43,11 +45,18 @@ alpha_for() {
     esac
 }
 
+for algo in $ALGOS; do
+    case "$algo" in
+        ppo | p3o) ;;
+        *) echo "error: ALGOS must be ppo, p3o or both, got '$algo'." >&2; exit 1 ;;
+    esac
+done
+
 commands=()
 names=()
 for game in $GAMES; do
     for seed in $SEEDS; do
-        for algo in ppo p3o; do
+        for algo in $ALGOS; do
             name="$GROUP/${game}__${algo}_atari_envpool__${seed}"
             cmd="$PYTHON ${scripts}${algo}_atari_envpool.py --env-id $game --seed $seed --total-timesteps $TOTAL_TIMESTEPS"
             if [ "$algo" = p3o ]; then cmd+=" --ewma-alpha $(alpha_for "$game")"; fi

@@ -60,6 +60,9 @@ class Args:
     """the tag the table summarises"""
     last: int = 0
     """per-run statistic: the mean of the run's last K values of the tag (0: of all its values)"""
+    above: float | None = None
+    """with a histogram tag (P3O's `p3o/beta`): per logged histogram the share of values above this number,
+    read from the buckets (linear within the one bucket that straddles it), summarised like a scalar tag"""
     table_name: str = "table"
     """the table is written to OUT/TABLE_NAME.md and .csv"""
     window_steps: int = 0
@@ -99,10 +102,26 @@ def logged_identity(acc) -> dict:
     return {key: table[key] for key in ("env_id", "exp_name", "seed") if key in table}
 
 
-def find_runs(roots, group_regex=None) -> tuple[list[Run], list[str]]:
+def share_above(histogram, threshold: float) -> float:
+    """The share of a TensorBoard histogram's values above `threshold`. Bucket i holds the values in
+    (limit[i-1], limit[i]] (the first from the histogram's min); the bucket that straddles the threshold
+    counts in proportion to the part of it above (values spread evenly within it)."""
+    limits = np.array(histogram.bucket_limit, dtype=np.float64)
+    counts = np.array(histogram.bucket, dtype=np.float64)
+    if histogram.num == 0:
+        return float("nan")
+    lower = np.concatenate([[histogram.min], limits[:-1]])
+    upper = np.minimum(limits, histogram.max)
+    width = upper - lower
+    above = np.where(width > 0, np.clip((upper - threshold) / np.where(width > 0, width, 1), 0, 1), upper > threshold)
+    return float((counts * above).sum() / histogram.num)
+
+
+def find_runs(roots, group_regex=None, above=None) -> tuple[list[Run], list[str]]:
     """Every folder under the roots with an event file, read with TensorBoard's own reader. A run's game and
     algorithm are the env id and exp name it logged with its hyperparameters; for runs that logged none,
-    the folder name `{env_id}__{exp_name}__...` (or --group-regex, which overrides both)."""
+    the folder name `{env_id}__{exp_name}__...` (or --group-regex, which overrides both). With `above`,
+    each histogram tag becomes a scalar series: the share of its values above that number."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     runs, problems = [], []
@@ -117,7 +136,9 @@ def find_runs(roots, group_regex=None) -> tuple[list[Run], list[str]]:
     for folder in sorted(folders):
         name = os.path.basename(os.path.normpath(folder))
         try:
-            acc = EventAccumulator(folder, size_guidance={"scalars": 0, "tensors": 1})
+            acc = EventAccumulator(
+                folder, size_guidance={"scalars": 0, "tensors": 1, "histograms": 0 if above is not None else 1}
+            )
             acc.Reload()
             identity = logged_identity(acc)
             scalars = {}
@@ -125,6 +146,12 @@ def find_runs(roots, group_regex=None) -> tuple[list[Run], list[str]]:
                 events = acc.Scalars(tag)
                 steps = np.array([e.step for e in events], dtype=np.float64)
                 values = np.array([e.value for e in events], dtype=np.float64)
+                order = np.argsort(steps, kind="stable")
+                scalars[tag] = (steps[order], values[order])
+            for tag in acc.Tags()["histograms"] if above is not None else []:
+                events = acc.Histograms(tag)
+                steps = np.array([e.step for e in events], dtype=np.float64)
+                values = np.array([share_above(e.histogram_value, above) for e in events], dtype=np.float64)
                 order = np.argsort(steps, kind="stable")
                 scalars[tag] = (steps[order], values[order])
         except Exception as e:  # a truncated or foreign file: say which, go on
@@ -409,24 +436,25 @@ def main(args: Args) -> dict:
                 sys.exit("error: --group-regex needs the named groups (?P<env>...) and (?P<algo>...).")
         except re.error as e:
             sys.exit(f"error: --group-regex is not a regular expression ({e}).")
-    runs, problems = find_runs(args.roots, args.group_regex)
+    runs, problems = find_runs(args.roots, args.group_regex, args.above)
     for problem in problems:
         print(f"skipped: {problem}", file=sys.stderr)
     if not runs:
         sys.exit(f"error: no readable runs under {', '.join(args.roots)}.")
     os.makedirs(args.out, exist_ok=True)
+    label = args.tag if args.above is None else f"{args.tag} share above {args.above:g}"
     table, missing = summarise(runs, args.tag, args.last)
     for problem in missing:
         print(f"skipped: {problem}", file=sys.stderr)
     result = {"runs": len(runs), "table": table, "figures": [], "across_games": None}
     if table:
-        print(write_table(table, args.out, args.table_name, args.tag, args.last))
+        print(write_table(table, args.out, args.table_name, label, args.last))
         print(f"wrote {os.path.join(args.out, args.table_name)}.md and .csv")
     else:
         print(f"no run has '{args.tag}'; no table written", file=sys.stderr)
     result["windows"] = summarise_windows(runs, args.tag, args.window_steps) if args.window_steps else {}
     if result["windows"]:
-        print(write_window_table(result["windows"], args.out, args.table_name, args.tag, args.window_steps))
+        print(write_window_table(result["windows"], args.out, args.table_name, label, args.window_steps))
         print(f"wrote {os.path.join(args.out, args.table_name)}_windows.md and .csv")
     comparison, notes = across_games(
         runs, args.tag, args.last, args.p3o_name, args.ppo_name, args.bootstrap_reps, args.seed
