@@ -2,18 +2,21 @@
 # has the docs; p3o_atari_envpool.py is this file plus P3O, so diff the two to see what P3O changes.
 import ctypes
 import difflib
+import fcntl
+import glob
 import importlib.util
 import json
+import math
 import os
 import random
 import signal
+import socket
 import sys
 import time
 import uuid
 from dataclasses import dataclass
 
 import envpool
-import imageio_ffmpeg
 import numpy as np
 import torch
 import torch.nn as nn
@@ -36,11 +39,12 @@ class Args:
     save_model: bool = False
     """whether to save the trained agent to `runs/{run_name}/{exp_name}.cleanrl_model`"""
     run_name: str | None = None
-    """the run folder under `runs/` (default: `{env_id}__{exp_name}__{seed}__{unix_time}`)"""
+    """the run folder under `runs/` (default: `{env_id}__{exp_name}__{seed}__{unix_time}`); one process at a time"""
     checkpoint_every: int = 10
     """write `runs/{run_name}/checkpoint.pt` every this many iterations (0: only at the end and on a signal)"""
     resume: str | None = None
-    """continue the run of this checkpoint (a `checkpoint.pt` or its run folder) with its saved arguments"""
+    """continue the run of this checkpoint (a `checkpoint.pt` or its run folder) with its saved arguments; run flags
+    (--save-model, --eval-episodes, --capture-video, --track, ...) keep the run's values unless given again"""
     auto_resume: bool = False
     """continue `runs/{run_name}` if it holds a checkpoint, else start it (for sweeps and requeued jobs)"""
     eval_episodes: int = 10
@@ -195,20 +199,25 @@ def explained_variance(values, returns, valid):
     return torch.where(var_y == 0, torch.nan, 1 - (y_true - y_pred).var(unbiased=False) / var_y)
 
 
-def main(args: Args) -> dict[str, list[float]]:
-    """Train; returns the seconds each iteration spent in the rollout and in the update (with the logging)."""
+def main(args: Args, cli: list[str] | None = None) -> dict[str, list[float]]:
+    """Train; returns the seconds each iteration spent in the rollout and in the update (with the logging).
+    `cli` is the command line `args` were parsed from: a resume parses it again over the checkpoint's arguments."""
     check_args(args)
     keep_freed_memory()
-    run_dir, checkpoint = open_run(args)  # on a resume, args become the checkpoint's
+    run_dir, checkpoint = open_run(args, cli)  # on a resume, args become the checkpoint's
     args.batch_size = int(args.num_envs * args.num_steps)
     args.minibatch_size = int(args.batch_size // args.num_minibatches)
     args.num_iterations = args.total_timesteps // args.batch_size
     timings = {"rollout_s": [], "update_s": []}
     if checkpoint and checkpoint["finished"]:
         print(f"{run_dir} already finished ({checkpoint['global_step']} steps); nothing to do.")
+        release(run_dir)
         return timings
     start_iteration = checkpoint["iteration"] if checkpoint else 0
     checkpoint_path = os.path.join(run_dir, "checkpoint.pt")
+
+    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+    device_name = say_device(device, args.cuda)
 
     from torch.utils.tensorboard import SummaryWriter
 
@@ -217,7 +226,7 @@ def main(args: Args) -> dict[str, list[float]]:
     # on resume, points the killed run logged after its checkpoint are purged, so none is duplicated
     writer = SummaryWriter(run_dir, purge_step=start_iteration * args.batch_size + 1 if checkpoint else None)
     if checkpoint is None:
-        table = "\n".join([f"|{key}|{value}|" for key, value in vars(args).items()])
+        table = "\n".join([f"|{key}|{value}|" for key, value in (vars(args) | {"device": device_name}).items()])
         writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n{table}")
 
     # TRY NOT TO MODIFY: seeding. envpool cannot save game states, so a resumed run plays fresh games with
@@ -227,7 +236,6 @@ def main(args: Args) -> dict[str, list[float]]:
     np.random.seed(seed)
     torch.manual_seed(seed)
     torch.backends.cudnn.deterministic = args.torch_deterministic
-    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
     if device.type == "cuda":
         torch.set_float32_matmul_precision("high")  # TF32 matmuls (cuDNN convolutions use TF32 by default)
 
@@ -328,6 +336,7 @@ def main(args: Args) -> dict[str, list[float]]:
 
             # Optimizing the policy and value network; statistics stay on the device until the end
             clipfracs = []
+            finite = torch.ones((), dtype=torch.bool, device=device)  # every loss and gradient norm so far
             for _epoch in range(args.update_epochs):
                 b_inds = torch.randperm(args.batch_size, device=device)
                 for start in range(0, args.batch_size, args.minibatch_size):
@@ -363,11 +372,23 @@ def main(args: Args) -> dict[str, list[float]]:
 
                     optimizer.zero_grad()
                     loss.backward()
-                    nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+                    grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
                     optimizer.step()
+                    finite &= torch.isfinite(loss) & torch.isfinite(grad_norm)
 
                 if args.target_kl is not None and approx_kl.item() > args.target_kl:
                     break
+
+            if not finite.item():  # the weights are no longer finite: stop before a checkpoint can take them
+                kept = (
+                    f"{checkpoint_path} keeps the last finite weights"
+                    if os.path.exists(checkpoint_path)
+                    else "nothing was saved"
+                )
+                sys.exit(
+                    f"error: the loss became non-finite (nan or inf) in iteration {iteration}, so the run stopped and"
+                    f" {kept} (a lower --learning-rate or --max-grad-norm may help)."
+                )
 
             # one host transfer for all of this iteration's statistics
             stats = {
@@ -399,21 +420,32 @@ def main(args: Args) -> dict[str, list[float]]:
                 sys.exit(128 + stop_signal[0])
 
         save_checkpoint(checkpoint_path, agent, optimizer, args, args.num_iterations)
-        if args.eval_episodes:
-            videos = f"{run_dir}/videos" if args.capture_video else None
-            seed = args.seed + 1_000_000
-            report = evaluate(agent, args.env_id, args.eval_episodes, seed, args.eval_greedy, device, videos)
-            write_evaluation(report | {"algorithm": ALGORITHM, "global_step": global_step}, run_dir, writer)
-            print(f"eval: {args.eval_episodes} games, return {report['mean']:.1f} ± {report['std_err']:.1f}")
-            if args.track and videos:
-                wandb.log({f"videos/eval-game{i}": wandb.Video(path) for i, path in enumerate(report["videos"])})
-        if args.save_model:
-            model_path = f"{run_dir}/{args.exp_name}.cleanrl_model"
-            save(model_path, agent, args, env_id=args.env_id, num_actions=agent.actor.out_features)
+        try:
+            if args.eval_episodes:
+                videos = f"{run_dir}/videos" if args.capture_video else None
+                seed = args.seed + 1_000_000
+                report = evaluate(agent, args.env_id, args.eval_episodes, seed, args.eval_greedy, device, videos)
+                write_evaluation(
+                    report | {"algorithm": ALGORITHM, "global_step": global_step, "device": device_name},
+                    run_dir,
+                    writer,
+                )
+                print(f"eval: {args.eval_episodes} games, return {report['mean']:.1f} ± {report['std_err']:.1f}")
+                if args.track and videos:
+                    wandb.log({f"videos/eval-game{i}": wandb.Video(path) for i, path in enumerate(report["videos"])})
+            if args.save_model:
+                model_path = f"{run_dir}/{args.exp_name}.cleanrl_model"
+                save(model_path, agent, args, env_id=args.env_id, num_actions=agent.actor.out_features)
+        except Exception as e:  # after a whole training: one sentence, and the checkpoint to redo this stage from
+            sys.exit(
+                f"error: the evaluation or model saving after training failed ({type(e).__name__}: {e}); the trained"
+                f" agent is kept in {checkpoint_path}: run again with --resume {run_dir} to redo them."
+            )
         save_checkpoint(checkpoint_path, agent, optimizer, args, args.num_iterations, finished=True)
     finally:
         envs.close()
         writer.close()
+        release(run_dir)
     return timings
 
 
@@ -423,10 +455,33 @@ def main(args: Args) -> dict[str, list[float]]:
 def check_args(args: Args) -> None:
     """Refuse bad input before any environment starts: one sentence, exit status 1."""
     a, flag = vars(args), {name: "--" + name.replace("_", "-") for name in vars(args)}
+    bad = [
+        f"{flag[n]} must be a finite number, got {v}."
+        for n, v in a.items()
+        if isinstance(v, float) and not math.isfinite(v)
+    ]
+    # zero or a negative clip coefficient, value coefficient or gradient norm leaves nothing to learn
     positive = ("total_timesteps", "num_envs", "num_steps", "num_minibatches", "update_epochs", "learning_rate")
-    bad = [f"{flag[n]} must be positive, got {a[n]}." for n in positive if not a[n] > 0]
+    positive += ("clip_coef", "vf_coef", "max_grad_norm")
+    bad += [f"{flag[n]} must be positive, got {a[n]}." for n in positive if not a[n] > 0]
     bad += [f"{flag[n]} must lie in [0, 1], got {a[n]}." for n in ("gamma", "gae_lambda") if not 0 <= a[n] <= 1]
-    bad += [f"{flag[n]} must be 0 or more, got {a[n]}." for n in ("checkpoint_every", "eval_episodes") if a[n] < 0]
+    not_negative = ("checkpoint_every", "eval_episodes", "ent_coef")
+    bad += [f"{flag[n]} must be 0 or more, got {a[n]}." for n in not_negative if not a[n] >= 0]
+    bad += (
+        [f"--target-kl must be positive, got {args.target_kl}."]
+        if args.target_kl is not None and not args.target_kl > 0
+        else []
+    )
+    bad += [f"{flag[n]} is computed from the other sizes, so it cannot be set (got {a[n]})." for n in COMPUTED if a[n]]
+    for n in ("exp_name", "run_name"):
+        parts = [] if a[n] is None else a[n].split("/")
+        if parts and (
+            any(p in ("", ".", "..") for p in parts)
+            or "\\" in a[n]
+            or "\0" in a[n]
+            or (n == "exp_name" and len(parts) > 1)
+        ):
+            bad.append(f"{flag[n]} {a[n]!r} must be a plain relative name, so that the run stays under runs/.")
     if args.auto_resume and not args.run_name:
         bad.append("--auto-resume needs --run-name, the run folder it continues.")
     if args.capture_video and not args.eval_episodes:
@@ -440,6 +495,21 @@ def check_args(args: Args) -> None:
         )
     if not bad and args.total_timesteps < batch:
         bad.append(f"--total-timesteps {args.total_timesteps} is less than one batch ({batch}): no update would run.")
+    # envpool takes seeds below 2^31 (and python's and numpy's none below 0); the run derives seed + i for env i
+    # of a rollout resumed at any iteration, and seed + 1,000,000 + i for evaluation game i
+    derived = (
+        max((args.total_timesteps // batch + 1) * args.num_envs, 1_000_000 + args.eval_episodes) - 1 if not bad else 0
+    )
+    if not bad and derived > 2**31 - 1:
+        bad.append(
+            f"the run would derive seeds up to --seed + {derived} (evaluation games and iterations x envs),"
+            " past envpool's 2^31 - 1: fewer --eval-episodes or --total-timesteps."
+        )
+    if not bad and not 0 <= args.seed <= 2**31 - 1 - derived:
+        bad.append(
+            f"--seed must lie in [0, {2**31 - 1 - derived}] (envpool seeds stay below 2^31, and this run derives"
+            f" seeds up to --seed + {derived}), got {args.seed}."
+        )
     atari = [i for i in envpool.list_all_envs() if envpool.registration.registry.specs[i][0] == "envpool.atari"]
     if args.env_id not in atari:
         known = args.env_id in envpool.list_all_envs()
@@ -452,16 +522,30 @@ def check_args(args: Args) -> None:
 
 
 FORMAT = "atari-envpool/2"  # checkpoints and saved models: the agent, its arguments and more
-# flags that may change when a run is resumed; the other arguments are the experiment's, from its checkpoint
+# flags that may change when a run is resumed (they keep the run's values unless given again); the other
+# arguments are the experiment's, from its checkpoint
 RUN_FLAGS = {"cuda", "save_model", "checkpoint_every", "resume", "auto_resume", "eval_episodes", "eval_greedy"}
 RUN_FLAGS |= {"capture_video", "track", "wandb_project_name", "wandb_entity"}
+COMPUTED = ("batch_size", "minibatch_size", "num_iterations")  # filled in at runtime from the other sizes
+HELD_RUNS = {}  # run folder -> the open lock file that holds it for this process
 
 
 def save(path: str, agent: Agent, args: Args, **extra) -> None:
-    """The agent, its arguments and `extra`, written atomically (a temporary file, then a rename)."""
+    """The agent, its arguments and `extra`, written atomically (a temporary file, then a rename): a failed write
+    (a full disk) stops the run with a sentence and leaves the previous file as it was."""
     state = {"format": FORMAT, "algorithm": ALGORITHM, "args": vars(args), "model_state_dict": agent.state_dict()}
-    torch.save(state | extra, f"{path}.tmp")
-    os.replace(f"{path}.tmp", path)
+    try:
+        torch.save(state | extra, f"{path}.tmp")
+        os.replace(f"{path}.tmp", path)
+    except (OSError, RuntimeError) as e:
+        if os.path.exists(f"{path}.tmp"):
+            os.remove(f"{path}.tmp")
+        why = e.strerror if isinstance(e, OSError) and e.strerror else str(e).splitlines()[0]
+        before = "is as it was before" if os.path.exists(path) else "was not written"
+        sys.exit(
+            f"error: writing {path} failed ({why}), so it {before}; make room and continue with"
+            f" --resume {os.path.dirname(path)}."
+        )
 
 
 def save_checkpoint(path, agent, optimizer, args, iteration, finished=False) -> None:
@@ -469,19 +553,45 @@ def save_checkpoint(path, agent, optimizer, args, iteration, finished=False) -> 
     save(path, agent, args, optimizer_state_dict=optimizer.state_dict(), **progress)
 
 
-def open_run(args: Args) -> tuple[str, dict | None]:
-    """The run folder and, for a resume, its checkpoint. A resume takes the experiment's arguments from the
-    checkpoint and refuses a flag given here (not left at its default) that contradicts them."""
+def open_run(args: Args, cli: list[str] | None = None) -> tuple[str, dict | None]:
+    """The run folder, held by this process alone until `main` ends, and for a resume its checkpoint."""
     if args.auto_resume and args.resume is None and os.path.exists(f"runs/{args.run_name}/checkpoint.pt"):
         args.resume = f"runs/{args.run_name}"
+    path = None
     if args.resume is None:
         run_dir = f"runs/{args.run_name or f'{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}'}"
-        if os.path.exists(f"{run_dir}/checkpoint.pt"):
-            sys.exit(f"error: {run_dir} already holds a run; continue it with --resume {run_dir}.")
-        return run_dir, None
-    path = os.path.join(args.resume, "checkpoint.pt") if os.path.isdir(args.resume) else args.resume
-    if not os.path.isfile(path):
-        sys.exit(f"error: --resume {path}: there is no checkpoint there.")
+    else:
+        path = os.path.join(args.resume, "checkpoint.pt") if os.path.isdir(args.resume) else args.resume
+        if not os.path.isfile(path):
+            sys.exit(f"error: --resume {path}: there is no checkpoint there.")
+        run_dir = os.path.dirname(path)
+    hold(run_dir)
+    try:
+        return run_dir, start_clean(run_dir) if path is None else read_checkpoint(path, args, cli)
+    except SystemExit:
+        release(run_dir)
+        raise
+
+
+def start_clean(run_dir: str) -> None:
+    """A new run's folder: never another run's, and without what a start killed before its first checkpoint
+    left there (its points would be logged again)."""
+    if os.path.exists(f"{run_dir}/checkpoint.pt"):
+        sys.exit(f"error: {run_dir} already holds a run; continue it with --resume {run_dir}.")
+    if os.path.exists(f"{run_dir}/eval.json"):
+        sys.exit(f"error: {run_dir} holds an evaluation but no checkpoint; give this run another --run-name.")
+    stale = glob.glob(f"{run_dir}/events.out.tfevents.*") + glob.glob(f"{run_dir}/checkpoint.pt.tmp")
+    for path in stale:
+        os.remove(path)
+    if stale:
+        print(
+            f"{run_dir} held no checkpoint: removed what an earlier start left ({len(stale)} file(s)); starting afresh"
+        )
+
+
+def read_checkpoint(path: str, args: Args, cli: list[str] | None) -> dict:
+    """A resume's checkpoint. It gives the experiment's arguments and refuses one given here that contradicts
+    them; the run flags keep the run's values unless given again (in `cli`; in-process: when not at their default)."""
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:
@@ -491,15 +601,71 @@ def open_run(args: Args) -> tuple[str, dict | None]:
     if checkpoint["algorithm"] != ALGORITHM:
         algo = checkpoint["algorithm"]
         sys.exit(f"error: --resume {path} is a {algo} checkpoint; resume it with {algo}_atari_envpool.py.")
-    saved, defaults = checkpoint["args"], vars(Args())
-    experiment = [name for name in defaults if name not in RUN_FLAGS]
-    differ = [name for name in experiment if getattr(args, name) not in (defaults[name], saved[name])]
+    defaults, saved = vars(Args()), {k: v for k, v in checkpoint["args"].items() if k in vars(Args())}
+    if cli is not None:  # the command line again, over the checkpoint's arguments: what it leaves out keeps them
+        import tyro
+
+        given = vars(tyro.cli(Args, args=cli, default=Args(**saved)))
+    else:
+        given = {n: v if v != defaults[n] else saved.get(n, v) for n, v in vars(args).items()}
+    experiment = [name for name in defaults if name not in RUN_FLAGS and name not in COMPUTED and name in saved]
+    differ = [name for name in experiment if given[name] != saved[name]]
     if differ:
-        was = ", ".join(f"--{n.replace('_', '-')} {saved[n]!r} (now {getattr(args, n)!r})" for n in differ)
+        was = ", ".join(f"--{n.replace('_', '-')} {saved[n]!r} (now {given[n]!r})" for n in differ)
         sys.exit(f"error: --resume {path} was started with {was}; resume it with the same arguments.")
+    for name in RUN_FLAGS - {"resume", "auto_resume"}:
+        setattr(args, name, given[name])
     for name in experiment:
         setattr(args, name, saved[name])
-    return os.path.dirname(path), checkpoint
+    check_args(args)  # the run flags it keeps together with those given now
+    return checkpoint
+
+
+def hold(run_dir: str) -> None:
+    """Make the run folder and lock it for this process (an OS lock, released however the process ends, so a
+    killed run never blocks its own resume); a second process given the same folder is refused."""
+    if os.path.realpath(run_dir) in HELD_RUNS:
+        return
+    try:
+        os.makedirs(run_dir, exist_ok=True)
+        lock = open(os.path.join(run_dir, ".lock"), "a+")
+    except OSError as e:
+        sys.exit(f"error: cannot create the run folder {run_dir} ({e.strerror}).")
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        lock.seek(0)
+        holder = lock.read().strip() or "another process"
+        sys.exit(
+            f"error: {run_dir} is in use by {holder}; one run folder takes one process (wait, or choose"
+            " another --run-name)."
+        )
+    lock.seek(0)
+    lock.truncate()
+    lock.write(f"process {os.getpid()} on {socket.gethostname()}")
+    lock.flush()
+    HELD_RUNS[os.path.realpath(run_dir)] = lock
+
+
+def release(run_dir: str) -> None:
+    """Let the run folder go (for in-process callers; the OS does it when the process ends)."""
+    lock = HELD_RUNS.pop(os.path.realpath(run_dir), None)
+    if lock is not None:
+        lock.close()
+
+
+def say_device(device: torch.device, cuda: bool) -> str:
+    """Print the device the run trains on, warning when --cuda is on but torch finds no GPU; returns its name."""
+    name = f"cuda ({torch.cuda.get_device_name(device)})" if device.type == "cuda" else "cpu"
+    if cuda and device.type == "cpu":
+        build = f"built for CUDA {torch.version.cuda}" if torch.version.cuda else "a CPU-only build"
+        print(
+            f"warning: --cuda is on but torch {torch.__version__} ({build}) finds no usable GPU, so this run trains on"
+            " the CPU (README.md, 'GPU and driver'; --no-cuda silences this).",
+            file=sys.stderr,
+        )
+    print(f"device: {name}", flush=True)
+    return name
 
 
 def start_wandb(args: Args, run_dir: str, resuming: bool):
@@ -511,16 +677,23 @@ def start_wandb(args: Args, run_dir: str, resuming: bool):
     run_id = open(id_path).read() if resuming and os.path.exists(id_path) else uuid.uuid4().hex
     with open(id_path, "w") as f:
         f.write(run_id)
-    wandb.init(
-        project=args.wandb_project_name,
-        entity=args.wandb_entity,
-        sync_tensorboard=True,
-        config=vars(args),
-        name=os.path.basename(run_dir),
-        save_code=True,
-        id=run_id,
-        resume="allow",
-    )
+    try:
+        wandb.init(
+            project=args.wandb_project_name,
+            entity=args.wandb_entity,
+            sync_tensorboard=True,
+            config=vars(args),
+            name=os.path.basename(run_dir),
+            save_code=True,
+            id=run_id,
+            resume="allow",
+        )
+    except Exception as e:  # most often no login: offline mode needs none
+        why = (str(e).strip().splitlines() or [type(e).__name__])[0]
+        sys.exit(
+            f"error: W&B did not start ({why}); log in with `wandb login`, or set WANDB_MODE=offline to log"
+            " locally and `wandb sync` later."
+        )
     return wandb
 
 
@@ -533,6 +706,8 @@ def evaluate(agent, env_id, episodes, seed, greedy, device, video_dir=None) -> d
     envs = make_env(env_id, episodes, seed, render_mode="rgb_array" if video_dir else None)
     paths = [f"{video_dir}/eval-game{i}.mp4" for i in range(episodes)] if video_dir else []
     if video_dir:
+        import imageio_ffmpeg  # only here: nothing else needs it (the GPU bundle carries it without its ffmpeg)
+
         os.makedirs(video_dir, exist_ok=True)
     writers = [imageio_ffmpeg.write_frames(path, (160, 210), fps=15, macro_block_size=1) for path in paths]
     for writer in writers:
@@ -583,4 +758,4 @@ def keep_freed_memory() -> None:
 if __name__ == "__main__":
     import tyro
 
-    main(tyro.cli(Args))
+    main(tyro.cli(Args), sys.argv[1:])

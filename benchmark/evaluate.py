@@ -11,6 +11,7 @@ Prints each game's return and the mean ± standard error.
 
 import importlib
 import os
+import shutil
 import sys
 from dataclasses import dataclass
 
@@ -34,7 +35,8 @@ class Args:
     cuda: bool = True
     """run the network on the GPU when there is one"""
     run_dir: str | None = None
-    """also write `eval.json` and a TensorBoard event file (`eval/episodic_return`) into this folder"""
+    """also write `eval.json` and a TensorBoard event file (`eval/episodic_return`) into this new folder (a
+    model's evaluation is logged as `{exp_name} (evaluate.py)`, so results.py never counts it as another run)"""
     video: bool = False
     """also write each game as an MP4 (colour, 210x160, 15 frames/s) to `RUN_DIR/videos/eval-game{i}.mp4`"""
 
@@ -74,6 +76,12 @@ def main(args: Args) -> dict:
         sys.exit("error: --random needs --env-id.")
     if args.video and not args.run_dir:
         sys.exit("error: --video needs --run-dir, the folder whose videos/ the games are written to.")
+    if not 0 <= args.seed <= 2**31 - args.episodes:
+        sys.exit(
+            f"error: --seed must lie in [0, {2**31 - args.episodes}] (envpool seeds stay below 2^31), got {args.seed}."
+        )
+    if args.run_dir and os.path.exists(args.run_dir):
+        sys.exit(f"error: --run-dir {args.run_dir} already exists; the evaluation writes a new folder of its own.")
     saved = None if args.random else load_model(args.model_path, load_script("ppo"))
     script = load_script("ppo" if saved is None else saved["algorithm"])
     env_id = args.env_id or saved["args"]["env_id"]
@@ -95,27 +103,40 @@ def main(args: Args) -> dict:
         agent.load_state_dict(weights)
     device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
     agent = agent.to(device)
+    device_name = script.say_device(device, args.cuda)
 
-    videos = os.path.join(args.run_dir, "videos") if args.video else None
+    # the folder is written under a hidden name and renamed when complete: an interrupted evaluation leaves no
+    # half-written run for results.py or the learning check to mistake for a finished one
+    parent, name = os.path.split(os.path.normpath(args.run_dir)) if args.run_dir else ("", "")
+    partial = os.path.join(parent, f".{name}.partial-{os.getpid()}")
+    videos = os.path.join(partial, "videos") if args.video else None
     report = script.evaluate(agent, env_id, args.episodes, args.seed, args.greedy, device, videos)
     algorithm = "random" if saved is None else saved["algorithm"]
-    report |= {"algorithm": algorithm, "model_path": args.model_path}
+    report |= {"algorithm": algorithm, "model_path": args.model_path, "device": device_name}
     for game, (ret, length) in enumerate(zip(report["returns"], report["lengths"], strict=True)):
         print(f"game {game} (seed {report['seeds'][game]}): return {ret:.1f}, {length} steps")
     print(f"{algorithm} on {env_id}: {args.episodes} games, return {report['mean']:.2f} ± {report['std_err']:.2f}")
     if args.run_dir:
         from torch.utils.tensorboard import SummaryWriter
 
-        os.makedirs(args.run_dir, exist_ok=True)
-        writer = SummaryWriter(args.run_dir)
-        # the run's identity, as the training scripts log it, for benchmark/results.py
-        exp_name = "random" if saved is None else saved["args"]["exp_name"]
+        os.makedirs(partial, exist_ok=True)
+        writer = SummaryWriter(partial)
+        # the run's identity, as the training scripts log it, for benchmark/results.py: a model's evaluation is
+        # a group of its own, never a second run of the training run it came from
+        exp_name = "random" if saved is None else f"{saved['args']['exp_name']} (evaluate.py)"
         writer.add_text(
             "hyperparameters", f"|param|value|\n|-|-|\n|exp_name|{exp_name}|\n|env_id|{env_id}|\n|seed|{args.seed}|"
         )
-        script.write_evaluation(report, args.run_dir, writer)
+        if videos:
+            report["videos"] = [path.replace(partial, args.run_dir, 1) for path in report["videos"]]
+        script.write_evaluation(report, partial, writer)
         writer.close()
-        print(f"wrote {os.path.join(args.run_dir, 'eval.json')}" + (f" and {videos}/" if videos else ""))
+        try:
+            os.rename(partial, args.run_dir)
+        except OSError as e:
+            shutil.rmtree(partial, ignore_errors=True)
+            sys.exit(f"error: could not write --run-dir {args.run_dir} ({e.strerror}); nothing was written.")
+        print(f"wrote {os.path.join(args.run_dir, 'eval.json')}" + (f" and {args.run_dir}/videos/" if videos else ""))
     return report
 
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Does it learn? Both scripts on Breakout-v5 on the CPU, 1M steps per seed, each evaluated on 10 full
-# games at the end, a random policy measured by the same evaluation, then benchmark/results.py over every
-# run committed under benchmark/results/<group>/runs/. A benchmark, not a test.
+# Does it learn? Both scripts on the thesis's six games (or GAMES) on the CPU, 1M steps per (game, seed),
+# each run evaluated on 10 full games at the end, a random policy measured by the same evaluation, then
+# benchmark/results.py over every run committed under benchmark/results/<group>/runs/. A benchmark, not a test.
 #
 # MODE=thesis (default): the thesis's update regime (table 5.2: 256 steps per rollout, 8 epochs, learning
 #   rate 1e-3, not annealed, as in the first million steps of its 20M-step runs) with the environments
@@ -9,20 +9,22 @@
 # MODE=cleanrl: CleanRL's Atari sizes (8 envs x 128 steps, 4 x 4, learning rate 2.5e-4, annealed), where
 #   P3O as specified does not learn (benchmark/README.md, "Does it learn?").
 #
-# The two scripts of a seed run side by side, one core each (OMP_NUM_THREADS=1), about 3 hours a seed on
-# 2 cores. Runs (checkpoints, logs) go under runs/<group>/ in the current folder, as the scripts' do.
-# Calling it again skips seeds whose outputs are in OUT/runs/ and resumes unfinished runs from their
-# checkpoints.
+# Order: seed 1 of every game, then seed 2, and so on. The two scripts of a (game, seed) run side by side,
+# one core each (OMP_NUM_THREADS=1), through benchmark/p3o_vs_ppo.sh (which gives P3O the thesis's alpha of
+# the game), about 2.5-3 hours a pair on 2 cores. Runs (checkpoints, logs) go under runs/<group>/ in the
+# current folder, as the scripts' do. After each pair its small outputs (event files, eval.json, the
+# training log) are copied to OUT/runs/ to be committed and the tables remade; calling this again skips
+# pairs whose outputs are there and resumes unfinished runs from their checkpoints.
 #
-#   bash benchmark/learning_check.sh                          # seeds 1 2 3, thesis regime
-#   SEEDS="4 5" bash benchmark/learning_check.sh              # more seeds
-#   MODE=cleanrl SEEDS=1 bash benchmark/learning_check.sh     # the CleanRL-size check
-# Knobs: MODE, SEEDS, TOTAL_TIMESTEPS (1000000), OUT (benchmark/results/<group> of this repository),
+#   bash benchmark/learning_check.sh                                   # 6 games x seeds 1 2 3, thesis regime
+#   GAMES=Breakout-v5 SEEDS="4 5" bash benchmark/learning_check.sh     # more seeds of one game
+#   MODE=cleanrl GAMES=Breakout-v5 SEEDS=1 bash benchmark/learning_check.sh   # the CleanRL-size check
+# Knobs: MODE, GAMES, SEEDS, TOTAL_TIMESTEPS (1000000), OUT (benchmark/results/<group> of this repository),
 # PYTHON (how to start python; default "uv run python", with --project when run from another folder).
 set -euo pipefail
 
-# the tables and figures of every committed run of the group (after each seed, so a session that ends
-# between seeds leaves them up to date)
+# the tables and figures of every committed run of the group (after each pair, so a session that ends
+# between pairs leaves them up to date)
 tables() {
     local out=$1 steps=$2
     $PYTHON "${base}benchmark/results.py" "$out/runs" --out "$out"
@@ -43,72 +45,58 @@ if [ "$root" = "$PWD" ]; then
 else
     base="$root/" PYTHON=${PYTHON:-"uv run --project $root python"}
 fi
+export PYTHON
 
 main() {
     local mode=${MODE:-thesis} steps=${TOTAL_TIMESTEPS:-1000000} seeds=${SEEDS:-1 2 3}
+    local games=${GAMES:-Breakout-v5 Freeway-v5 Seaquest-v5 Riverraid-v5 Qbert-v5 MsPacman-v5}
     local group sizes
     case "$mode" in
         thesis)
             group=learning_check
-            sizes=(--num-envs 16 --num-steps 256 --num-minibatches 4 --update-epochs 8 --learning-rate 1e-3
-                --no-anneal-lr) ;;
+            sizes="--num-envs 16 --num-steps 256 --num-minibatches 4 --update-epochs 8 --learning-rate 1e-3 --no-anneal-lr" ;;
         cleanrl)
             group=learning_check_cleanrl
-            sizes=(--num-envs 8 --num-steps 128 --num-minibatches 4 --update-epochs 4 --learning-rate 2.5e-4) ;;
+            sizes="--num-envs 8 --num-steps 128 --num-minibatches 4 --update-epochs 4 --learning-rate 2.5e-4" ;;
         *)
             echo "error: MODE must be thesis or cleanrl, got '$mode'." >&2
             exit 1 ;;
     esac
-    if ! [[ "$steps" =~ ^[1-9][0-9]*$ ]]; then
-        echo "error: TOTAL_TIMESTEPS must be a positive whole number, got '$steps'." >&2
-        exit 1
-    fi
+    # every knob (games, seeds, steps) is checked by the sweep, for the whole grid, before anything runs
+    local sweep=(env GROUP="$group" TOTAL_TIMESTEPS="$steps" EXTRA_ARGS="$sizes --eval-episodes 10" WORKERS=2
+        ALGOS="ppo p3o" OMP_NUM_THREADS=1 bash "${base}benchmark/p3o_vs_ppo.sh")
+    GAMES=$games SEEDS=$seeds DRY_RUN=1 "${sweep[@]}" >/dev/null
+    local out=${OUT:-${base}benchmark/results/$group} ran=0 seed game algo
+    mkdir -p "$out/runs"
     for seed in $seeds; do
-        if ! [[ "$seed" =~ ^[0-9]+$ ]]; then
-            echo "error: SEEDS must be whole numbers, got '$seed'." >&2
-            exit 1
-        fi
-    done
-    local out=${OUT:-${base}benchmark/results/$group} logs=runs/$group/logs ran=0
-    mkdir -p "$logs" "$out/runs"
-    for seed in $seeds; do
-        local pids=() algo
-        if [ -f "$out/runs/Breakout-v5__ppo_atari_envpool__$seed/eval.json" ] &&
-            [ -f "$out/runs/Breakout-v5__p3o_atari_envpool__$seed/eval.json" ]; then
-            echo "seed $seed: done (its outputs are in $out/runs/)"
-            continue
-        fi
-        for algo in ppo p3o; do
-            local name="$group/Breakout-v5__${algo}_atari_envpool__$seed"
-            echo "seed $seed: $algo -> runs/$name (log $logs/${algo}_$seed.log)"
-            OMP_NUM_THREADS=1 $PYTHON "${base}${algo}_atari_envpool.py" --env-id Breakout-v5 --seed "$seed" \
-                "${sizes[@]}" --total-timesteps "$steps" --eval-episodes 10 --run-name "$name" --auto-resume \
-                >>"$logs/${algo}_$seed.log" 2>&1 &
-            pids+=($!)
+        for game in $games; do
+            if [ -f "$out/runs/${game}__ppo_atari_envpool__$seed/eval.json" ] &&
+                [ -f "$out/runs/${game}__p3o_atari_envpool__$seed/eval.json" ]; then
+                echo "$game seed $seed: done (its outputs are in $out/runs/)"
+                continue
+            fi
+            echo "$game seed $seed: ppo and p3o -> runs/$group/ (logs in runs/$group/logs/)"
+            if ! GAMES=$game SEEDS=$seed "${sweep[@]}"; then
+                echo "error: a run of $game seed $seed failed; see runs/$group/logs/ (calling this again resumes it)." >&2
+                exit 1
+            fi
+            local random_dir="runs/$group/${game}__random__$seed"
+            if [ ! -f "$random_dir/eval.json" ]; then
+                $PYTHON "${base}benchmark/evaluate.py" --random --env-id "$game" --episodes 10 \
+                    --seed "$((seed + 1000000))" --run-dir "$random_dir"
+            fi
+            # the small outputs (event files, eval.json, logs) are committed; checkpoints stay in runs/
+            for algo in ppo_atari_envpool p3o_atari_envpool random; do
+                local run="${game}__${algo}__$seed"
+                rm -rf "${out:?}/runs/$run"
+                mkdir -p "$out/runs/$run"
+                cp "runs/$group/$run"/events.out.tfevents.* "runs/$group/$run/eval.json" "$out/runs/$run/"
+                [ "$algo" = random ] || cp "runs/$group/logs/$run.log" "$out/runs/$run/train.log"
+            done
+            echo "$game seed $seed: done; commit $out/ now"
+            tables "$out" "$steps"
+            ran=1
         done
-        local failed=0 pid
-        for pid in "${pids[@]}"; do wait "$pid" || failed=1; done
-        if [ "$failed" = 1 ]; then
-            echo "error: a run of seed $seed failed; see $logs/ (calling this again resumes it)." >&2
-            exit 1
-        fi
-        local random_dir="runs/$group/Breakout-v5__random__$seed"
-        if [ ! -f "$random_dir/eval.json" ]; then
-            $PYTHON "${base}benchmark/evaluate.py" --random --env-id Breakout-v5 --episodes 10 \
-                --seed "$((seed + 1000000))" --run-dir "$random_dir"
-        fi
-        # the small outputs (event files, eval.json, logs) are committed; checkpoints stay in runs/
-        for algo in ppo p3o random; do
-            local run="Breakout-v5__${algo}_atari_envpool__$seed"
-            [ "$algo" = random ] && run="Breakout-v5__random__$seed"
-            rm -rf "${out:?}/runs/$run"
-            mkdir -p "$out/runs/$run"
-            cp "runs/$group/$run"/events.out.tfevents.* "runs/$group/$run/eval.json" "$out/runs/$run/"
-            [ "$algo" = random ] || cp "$logs/${algo}_$seed.log" "$out/runs/$run/train.log"
-        done
-        echo "seed $seed: done; commit $out/ now"
-        tables "$out" "$steps"
-        ran=1
     done
     if [ "$ran" = 0 ]; then tables "$out" "$steps"; fi
 }

@@ -12,7 +12,7 @@ Changes:
   batch-minmax    beta normalised by the min and max over the whole [T+1, N] rollout, not per environment
 
 Runs are named `{env}__p3o_{change}__{seed}__{time}` (`--exp-name` is set), so `results.py` keeps them
-apart from P3O's.
+apart from P3O's. Their checkpoints record the change: only this script, with the same change, continues them.
 """
 
 import os
@@ -50,6 +50,7 @@ def apply(change: str) -> None:
     def value_loss_with_beta_one(newvalue, values, returns, betas, *rest):
         return original(newvalue, values, returns, torch.ones_like(betas), *rest)
 
+    p3o.ABLATION = change  # written into the run's checkpoints: plain P3O refuses to continue the run, and back
     replacement = {"gae": gbae_with_beta_zero, "value-beta-one": value_loss_with_beta_one}.get(
         change, batch_minmax_betas
     )
@@ -65,7 +66,7 @@ def main(argv: list[str]) -> None:
     args = tyro.cli(p3o.Args, args=argv[1:])
     args.exp_name = f"p3o_{change.replace('-', '_')}"
     apply(change)
-    p3o.main(args)
+    p3o.main(args, argv[1:])
 
 
 if __name__ == "__main__":

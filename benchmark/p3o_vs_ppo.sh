@@ -45,10 +45,18 @@ alpha_for() {
     esac
 }
 
+# the knobs, before anything starts or is submitted: one sentence and exit status 1 for the first bad one
+knob_error() { echo "error: $1" >&2; exit 1; }
+[ -n "${GAMES// /}" ] || knob_error "GAMES is empty."
+[ -n "${SEEDS// /}" ] || knob_error "SEEDS is empty."
+for seed in $SEEDS; do [[ "$seed" =~ ^[0-9]+$ ]] || knob_error "SEEDS must be whole numbers, got '$seed'."; done
+[[ "$TOTAL_TIMESTEPS" =~ ^[1-9][0-9]*$ ]] || knob_error "TOTAL_TIMESTEPS must be a positive whole number, got '$TOTAL_TIMESTEPS'."
+[[ "$WORKERS" =~ ^[1-9][0-9]*$ ]] || knob_error "WORKERS must be a whole number of at least 1, got '$WORKERS'."
+[[ "$SIGNAL_SECONDS" =~ ^[0-9]+$ ]] || knob_error "SIGNAL_SECONDS must be a whole number, got '$SIGNAL_SECONDS'."
 for algo in $ALGOS; do
     case "$algo" in
         ppo | p3o) ;;
-        *) echo "error: ALGOS must be ppo, p3o or both, got '$algo'." >&2; exit 1 ;;
+        *) knob_error "ALGOS must be ppo, p3o or both, got '$algo'." ;;
     esac
 done
 
@@ -69,6 +77,21 @@ for game in $GAMES; do
 done
 
 logs="runs/$GROUP/logs"
+
+# every command's arguments, checked by the training script's own parser and check_args (games, seed ranges,
+# EXTRA_ARGS, run names), so that a bad grid stops here instead of in its first run
+$PYTHON - "$root" "${commands[@]}" <<'PY' || exit 1
+import importlib, shlex, sys
+
+sys.path.insert(0, sys.argv[1])
+import tyro
+
+for command in sys.argv[2:]:
+    words = shlex.split(command)
+    at = next(i for i, w in enumerate(words) if w.endswith("_atari_envpool.py"))
+    script = importlib.import_module(words[at].rsplit("/", 1)[-1][: -len(".py")])
+    script.check_args(tyro.cli(script.Args, args=words[at + 1 :], prog=words[at]))
+PY
 
 # leave out finished runs (their checkpoint says so); one python call reads every checkpoint that exists
 if [ -d "runs/$GROUP" ]; then

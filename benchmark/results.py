@@ -6,8 +6,9 @@ comparison across games (interquartile mean of human-normalised scores, rliable'
         --table-name train_last100 --no-figures
 
 Runs are folders holding `events.out.tfevents.*` files, grouped by the env id and exp name each run logged
-with its hyperparameters (runs without them: by a folder name `{env_id}__{exp_name}__...`; `--group-regex`
-with named groups `env` and `algo`, searched in the folder name, overrides both). Runs with unreadable files,
+with its hyperparameters, except that a folder named `{env_id}__{exp_name}__...` with other ones is grouped by
+its name, with a warning (runs that logged none: by that folder name; `--group-regex` with named groups `env`
+and `algo`, searched in the folder name, overrides all of these). Runs with unreadable files,
 no events or a missing tag are reported by name and skipped.
 """
 
@@ -119,8 +120,9 @@ def share_above(histogram, threshold: float) -> float:
 
 def find_runs(roots, group_regex=None, above=None) -> tuple[list[Run], list[str]]:
     """Every folder under the roots with an event file, read with TensorBoard's own reader. A run's game and
-    algorithm are the env id and exp name it logged with its hyperparameters; for runs that logged none,
-    the folder name `{env_id}__{exp_name}__...` (or --group-regex, which overrides both). With `above`,
+    algorithm are the env id and exp name it logged with its hyperparameters, unless its folder is named
+    `{env_id}__{exp_name}__...` with others (then the folder's, with a warning); for runs that logged none,
+    that folder name (--group-regex overrides all of these). With `above`,
     each histogram tag becomes a scalar series: the share of its values above that number."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -165,6 +167,15 @@ def find_runs(roots, group_regex=None, above=None) -> tuple[list[Run], list[str]
             env, algo = match.group("env"), match.group("algo")
         elif "env_id" in identity and "exp_name" in identity:
             env, algo = identity["env_id"], identity["exp_name"]
+            parts = name.split("__")
+            if len(parts) >= 3 and re.fullmatch(r"[A-Za-z0-9]+-v\d+", parts[0]) and (parts[0], parts[1]) != (env, algo):
+                # the folder name is what TensorBoard shows and what the user can rename: it decides, loudly
+                print(
+                    f"warning: {folder}: the folder name says {parts[0]} / {parts[1]} but the run logged {env} /"
+                    f" {algo}; grouped by the folder name",
+                    file=sys.stderr,
+                )
+                env, algo = parts[0], parts[1]
         elif len(name.split("__")) >= 2:
             env, algo = name.split("__")[:2]
         else:

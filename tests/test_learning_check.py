@@ -1,6 +1,6 @@
-"""benchmark/learning_check.sh end to end on the CPU: two seeds of one iteration each at the thesis regime's
-sizes, its outputs read back (eval.json, event files, tables), a second call that skips both seeds, and
-its refusals."""
+"""benchmark/learning_check.sh end to end on the CPU: two games x two seeds of one iteration each at the
+thesis regime's sizes, its outputs read back (eval.json, event files, each game's alpha, tables), a second
+call that skips every pair, and its refusals."""
 
 import csv
 import json
@@ -15,11 +15,13 @@ from helpers import ROOT, hyperparameters
 
 CHECK = os.path.join(ROOT, "benchmark", "learning_check.sh")
 STEPS = 4096  # one iteration of 16 envs x 256 steps
+GAMES = ("MsPacman-v5", "Breakout-v5")  # MsPacman has its own alpha (0.75), Breakout the default 0.9
 
 
 def learning_check(cwd, out, **knobs):
-    env = os.environ | {"TOTAL_TIMESTEPS": str(STEPS), "SEEDS": "1 2", "OUT": str(out), "PYTHON": sys.executable}
-    return subprocess.run(["bash", CHECK], cwd=cwd, env=env | knobs, capture_output=True, text=True, timeout=1500)
+    knobs = {"TOTAL_TIMESTEPS": str(STEPS), "SEEDS": "1 2", "GAMES": " ".join(GAMES), "OUT": str(out)} | knobs
+    env = os.environ | {"PYTHON": sys.executable}
+    return subprocess.run(["bash", CHECK], cwd=cwd, env=env | knobs, capture_output=True, text=True, timeout=2400)
 
 
 @pytest.fixture(scope="module")
@@ -31,58 +33,79 @@ def checked(tmp_path_factory):
     return cwd, out, first, second
 
 
-def test_each_seed_trains_both_scripts_in_the_thesis_regime_and_is_evaluated(checked):
+def test_each_pair_trains_both_scripts_in_the_thesis_regime_with_its_alpha_and_is_evaluated(checked):
     cwd, out, first, _ = checked
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
-    for seed in (1, 2):
-        games = [seed + 1_000_000 + i for i in range(10)]
-        for algo in ("ppo", "p3o"):
-            run = out / "runs" / f"Breakout-v5__{algo}_atari_envpool__{seed}"
-            report = json.loads((run / "eval.json").read_text())
-            assert report["algorithm"] == algo and report["seeds"] == games and len(report["returns"]) == 10
-            assert f"iteration 1/1 global_step={STEPS} " in (run / "train.log").read_text()
-            text = hyperparameters(run)
-            for row in ("num_envs|16", "num_steps|256", "num_minibatches|4", "update_epochs|8", "learning_rate|0.001"):
-                assert f"|{row}|" in text, row
-            assert "|anneal_lr|False|" in text and f"|seed|{seed}|" in text and f"|total_timesteps|{STEPS}|" in text
-            # the checkpoint stays in runs/ of the current folder, not among the committed outputs
-            assert (cwd / "runs" / "learning_check" / run.name / "checkpoint.pt").is_file()
-            assert not (run / "checkpoint.pt").exists()
-        random = json.loads((out / "runs" / f"Breakout-v5__random__{seed}" / "eval.json").read_text())
-        assert random["seeds"] == games and len(random["returns"]) == 10
+    for game in GAMES:
+        for seed in (1, 2):
+            games = [seed + 1_000_000 + i for i in range(10)]
+            for algo in ("ppo", "p3o"):
+                run = out / "runs" / f"{game}__{algo}_atari_envpool__{seed}"
+                report = json.loads((run / "eval.json").read_text())
+                assert report["algorithm"] == algo and report["seeds"] == games and len(report["returns"]) == 10
+                assert report["env_id"] == game
+                assert f"iteration 1/1 global_step={STEPS} " in (run / "train.log").read_text()
+                text = hyperparameters(run)
+                for row in (
+                    "num_envs|16",
+                    "num_steps|256",
+                    "num_minibatches|4",
+                    "update_epochs|8",
+                    "learning_rate|0.001",
+                ):
+                    assert f"|{row}|" in text, row
+                assert "|anneal_lr|False|" in text and f"|seed|{seed}|" in text and f"|total_timesteps|{STEPS}|" in text
+                assert f"|env_id|{game}|" in text
+                if algo == "p3o":  # the thesis's alpha of the game (section 5.1.2)
+                    assert f"|ewma_alpha|{0.75 if game == 'MsPacman-v5' else 0.9}|" in text
+                # the checkpoint stays in runs/ of the current folder, not among the committed outputs
+                assert (cwd / "runs" / "learning_check" / run.name / "checkpoint.pt").is_file()
+                assert not (run / "checkpoint.pt").exists()
+            random = json.loads((out / "runs" / f"{game}__random__{seed}" / "eval.json").read_text())
+            assert random["seeds"] == games and len(random["returns"]) == 10 and random["env_id"] == game
 
 
-def test_tables_come_after_each_seed_and_count_both_seeds(checked):
+def test_seed_1_of_every_game_comes_first_and_the_tables_after_each_pair(checked):
     _, out, first, _ = checked
     lines = first.stdout.splitlines()
-    seed1_done = lines.index(f"seed 1: done; commit {out}/ now")
-    seed2_start = next(i for i, line in enumerate(lines) if line.startswith("seed 2: ppo -> "))
-    assert seed1_done < next(i for i, line in enumerate(lines) if line.startswith("tables: ")) < seed2_start
+    order = [line.split(":")[0] for line in lines if line.endswith(f"done; commit {out}/ now")]
+    assert order == [f"{game} seed {seed}" for seed in (1, 2) for game in GAMES]
+    first_done = lines.index(f"{GAMES[0]} seed 1: done; commit {out}/ now")
+    second_start = next(i for i, line in enumerate(lines) if line.startswith(f"{GAMES[1]} seed 1: ppo and p3o -> "))
+    assert first_done < next(i for i, line in enumerate(lines) if line.startswith("tables: ")) < second_start
     with open(out / "table.csv") as f:
-        rows = {r["algorithm"]: r for r in csv.DictReader(f)}
-    for algo, folder in [("ppo_atari_envpool", "ppo_atari_envpool"), ("random", "random")]:
-        means = [
-            json.loads((out / "runs" / f"Breakout-v5__{folder}__{s}" / "eval.json").read_text())["mean"] for s in (1, 2)
-        ]
-        assert int(rows[algo]["n"]) == 2 and float(rows[algo]["mean"]) == pytest.approx(np.mean(means))
-    assert int(rows["p3o_atari_envpool"]["n"]) == 2
+        rows = {(r["game"], r["algorithm"]): r for r in csv.DictReader(f)}
+    for game in GAMES:
+        for algo, folder in [("ppo_atari_envpool", "ppo_atari_envpool"), ("random", "random")]:
+            means = [
+                json.loads((out / "runs" / f"{game}__{folder}__{s}" / "eval.json").read_text())["mean"] for s in (1, 2)
+            ]
+            row = rows[game, algo]
+            assert int(row["n"]) == 2 and float(row["mean"]) == pytest.approx(np.mean(means))
+        assert int(rows[game, "p3o_atari_envpool"]["n"]) == 2
     with open(out / "beta_windows.csv") as f:
         beta = list(csv.DictReader(f))
-    assert beta and all(r["algorithm"] == "p3o_atari_envpool" and int(r["n"]) == 2 for r in beta)
+    assert {r["game"] for r in beta} == set(GAMES)
+    assert all(r["algorithm"] == "p3o_atari_envpool" and int(r["n"]) == 2 for r in beta)
     assert {int(r["window_end"]) - int(r["window_start"]) for r in beta} == {STEPS // 5}
     with open(out / "train_last100_windows.csv") as f:
         assert {r["algorithm"] for r in csv.DictReader(f)} == {"ppo_atari_envpool", "p3o_atari_envpool"}
-    assert (out / "Breakout-v5__beta_mean.png").is_file() and (out / "train_last100.md").is_file()
+    for game in GAMES:
+        assert (out / f"{game}__beta_mean.png").is_file()
+    assert (out / "train_last100.md").is_file()
 
 
-def test_a_second_call_skips_finished_seeds_and_remakes_the_tables(checked):
+def test_a_second_call_skips_finished_pairs_and_remakes_the_tables(checked):
     cwd, out, _, second = checked
     assert second.returncode == 0, second.stdout[-3000:] + second.stderr[-3000:]
-    for seed in (1, 2):
-        assert f"seed {seed}: done (its outputs are in {out}/runs/)" in second.stdout
+    for game in GAMES:
+        for seed in (1, 2):
+            assert f"{game} seed {seed}: done (its outputs are in {out}/runs/)" in second.stdout
     assert " -> " not in second.stdout and "tables: " in second.stdout
     # nothing was started: each training log holds one run
-    for log in (cwd / "runs" / "learning_check" / "logs").iterdir():
+    logs = list((cwd / "runs" / "learning_check" / "logs").iterdir())
+    assert len(logs) == 2 * 2 * len(GAMES)
+    for log in logs:
         assert log.read_text().count(f"iteration 1/1 global_step={STEPS} ") == 1, log
 
 
@@ -92,9 +115,12 @@ def test_a_second_call_skips_finished_seeds_and_remakes_the_tables(checked):
         ({"MODE": "atari"}, "error: MODE must be thesis or cleanrl, got 'atari'."),
         ({"TOTAL_TIMESTEPS": "1e6"}, "error: TOTAL_TIMESTEPS must be a positive whole number, got '1e6'."),
         ({"SEEDS": "1 two"}, "error: SEEDS must be whole numbers, got 'two'."),
+        ({"GAMES": "Breakout-v5 Pacman-v5"}, "error: --env-id Pacman-v5 is not an envpool environment. Did you mean"),
+        ({"SEEDS": "1 4294967296"}, "error: --seed must lie in"),
     ],
 )
 def test_bad_knobs_are_refused_before_anything_runs(knobs, sentence, tmp_path):
     proc = learning_check(tmp_path, tmp_path / "out", **knobs)
-    assert proc.returncode == 1 and proc.stderr.strip() == sentence and proc.stdout == ""
+    assert proc.returncode == 1 and proc.stderr.startswith(sentence) and proc.stdout == ""
+    assert len(proc.stderr.strip().splitlines()) == 1
     assert os.listdir(tmp_path) == []

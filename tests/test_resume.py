@@ -2,10 +2,13 @@
 iteration's TensorBoard points exactly once and the killed run's points before the checkpoint untouched;
 bad checkpoints and changed arguments are refused by name."""
 
+import errno
+import json
 import os
 import re
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 
@@ -15,7 +18,7 @@ import torch
 
 import p3o_atari_envpool as p3o
 import ppo_atari_envpool as ppo
-from helpers import ROOT, scalars
+from helpers import ROOT, hyperparameters, scalars
 
 SCRIPTS = {"ppo": ppo, "p3o": p3o}
 BATCH, ITERATIONS, UPDATES = 4 * 32, 10, 2  # UPDATES: minibatches x epochs per iteration
@@ -242,3 +245,185 @@ def test_refusals_on_the_command_line_exit_1_with_one_sentence(stopped_run):
         proc.stderr
         == f"error: --resume {run_dir}/checkpoint.pt is a ppo checkpoint; resume it with ppo_atari_envpool.py.\n"
     )
+
+
+def test_points_logged_after_the_checkpoint_are_purged_on_resume(stopped_run, tmp_path):
+    # a killed run has logged iterations past its last checkpoint; made deterministic: the stopped run's
+    # checkpoint is kept aside, the run finished, and the old checkpoint put back in front of all its points
+    _, stopped_dir, iteration = stopped_run
+    shutil.copytree(stopped_dir, tmp_path / "runs" / "p")
+    old = (tmp_path / "runs" / "p" / "checkpoint.pt").read_bytes()
+    assert run("ppo", tmp_path, "--resume", "runs/p").returncode == 0
+    (tmp_path / "runs" / "p" / "checkpoint.pt").write_bytes(old)
+    before = scalars(str(tmp_path / "runs" / "p"))
+    assert max(s for s, _ in before["losses/value_loss"]) == ITERATIONS * BATCH > iteration * BATCH
+    check_resumed("ppo", tmp_path, "runs/p", before, iteration, ("--resume", "runs/p"))
+
+
+def test_checkpoints_of_earlier_versions_still_resume(stopped_run, tmp_path):
+    # before the scripts recorded P3O ablations, checkpoints had no "ablation" key: a P3O one must resume
+    rc, _, err = start_and_signal("p3o", tmp_path, signal.SIGTERM, 2, "--run-name", "old", "--checkpoint-every", "0")
+    assert rc == 128 + signal.SIGTERM, err
+    path = tmp_path / "runs" / "old" / "checkpoint.pt"
+    saved = torch.load(path, weights_only=True)
+    del saved["ablation"]
+    torch.save(saved, path)
+    proc = run("p3o", tmp_path, "--resume", "runs/old")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert torch.load(path, weights_only=True)["finished"]
+
+
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_one_run_folder_takes_one_process(algo, tmp_path):
+    """A second process given a folder in use is refused, whether it starts or resumes; once the first dies
+    (even by SIGKILL) its lock is gone and the run resumes."""
+    proc = subprocess.Popen(
+        command(algo, "--run-name", "busy", "--checkpoint-every", "1"), cwd=tmp_path, stdout=subprocess.PIPE, text=True
+    )
+    for line in proc.stdout:
+        if line.startswith("iteration 2/"):  # a checkpoint exists: the second process would resume it
+            proc.send_signal(signal.SIGSTOP)  # paused, not finished, while the others try
+            break
+    try:
+        for how in (("--run-name", "busy"), ("--run-name", "busy", "--auto-resume"), ("--resume", "runs/busy")):
+            second = run(algo, tmp_path, *how)
+            assert second.returncode == 1, second.stdout
+            assert second.stderr == (
+                f"error: runs/busy is in use by process {proc.pid} on {socket.gethostname()}; one run folder takes"
+                " one process (wait, or choose another --run-name).\n"
+            ), how
+        assert proc.poll() is None  # the first run was not disturbed
+    finally:
+        proc.kill()
+        proc.communicate(timeout=60)
+    resumed = run(algo, tmp_path, "--run-name", "busy", "--auto-resume")
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert "resuming runs/busy after iteration " in resumed.stdout
+
+
+def test_a_resume_keeps_the_runs_own_flags(tmp_path):
+    # started with run flags, stopped, resumed exactly as the stop message says: the flags still hold
+    flags = ("--run-name", "f", "--save-model", "--eval-episodes", "2", "--checkpoint-every", "0", "--eval-greedy")
+    rc, out, err = start_and_signal("p3o", tmp_path, signal.SIGTERM, 2, *flags)
+    assert rc == 128 + signal.SIGTERM, err
+    again = re.search(r"continue with (--resume \S+)\n", out).group(1).split()
+    script = os.path.join(ROOT, "p3o_atari_envpool.py")
+    proc = subprocess.run([sys.executable, script, *again], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    run_dir = tmp_path / "runs" / "f"
+    assert (run_dir / "p3o_atari_envpool.cleanrl_model").is_file()
+    report = json.loads((run_dir / "eval.json").read_text())
+    assert len(report["returns"]) == 2 and report["greedy"]
+    # a flag given again on the resume command line wins over the run's
+    rc, out, err = start_and_signal("p3o", tmp_path, signal.SIGTERM, 2, "--run-name", "g", "--eval-episodes", "3")
+    assert rc == 128 + signal.SIGTERM, err
+    proc = subprocess.run(
+        [sys.executable, script, "--resume", "runs/g", "--eval-episodes", "1", "--save-model"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert len(json.loads((tmp_path / "runs" / "g" / "eval.json").read_text())["returns"]) == 1
+    assert (tmp_path / "runs" / "g" / "p3o_atari_envpool.cleanrl_model").is_file()
+
+
+def test_a_start_killed_before_its_first_checkpoint_starts_again_clean(tmp_path):
+    rc, _, _ = start_and_signal("ppo", tmp_path, signal.SIGKILL, 3, "--run-name", "c", "--checkpoint-every", "0")
+    assert rc == -signal.SIGKILL
+    run_dir = tmp_path / "runs" / "c"
+    assert not (run_dir / "checkpoint.pt").exists() and len(list(run_dir.glob("events.out.tfevents.*"))) == 1
+    proc = run("ppo", tmp_path, "--run-name", "c", "--auto-resume")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "runs/c held no checkpoint: removed what an earlier start left (1 file(s)); starting afresh" in proc.stdout
+    assert len(list(run_dir.glob("events.out.tfevents.*"))) == 1
+    after = scalars(str(run_dir))
+    for tag in PER_ITERATION:
+        assert [s for s, _ in after[tag]] == [BATCH * i for i in range(1, ITERATIONS + 1)], tag
+    assert "|param|value|" in hyperparameters(str(run_dir))
+
+
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_a_non_finite_loss_stops_the_run_and_keeps_the_last_finite_checkpoint(algo, tmp_path, monkeypatch):
+    module = SCRIPTS[algo]
+    calls = []
+
+    def value_loss_that_turns_nan(*args):  # finite for two iterations (UPDATES calls each), then nan
+        calls.append(1)
+        loss = original(*args)
+        return loss * float("nan") if len(calls) > 2 * UPDATES else loss
+
+    original = module.value_loss
+    monkeypatch.setattr(module, "value_loss", value_loss_that_turns_nan)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as excinfo:
+        module.main(args_for(module, run_name="nan", checkpoint_every=1, cuda=False))
+    assert excinfo.value.code == (
+        "error: the loss became non-finite (nan or inf) in iteration 3, so the run stopped and runs/nan/checkpoint.pt"
+        " keeps the last finite weights (a lower --learning-rate or --max-grad-norm may help)."
+    )
+    saved = torch.load(tmp_path / "runs" / "nan" / "checkpoint.pt", weights_only=True)
+    assert saved["iteration"] == 2 and not saved["finished"]
+    assert all(torch.isfinite(w).all() for w in saved["model_state_dict"].values())
+    assert max(s for s, _ in scalars(str(tmp_path / "runs" / "nan"))["losses/value_loss"]) == 2 * BATCH
+
+
+def test_a_failed_checkpoint_write_leaves_the_previous_checkpoint_whole(stopped_run, tmp_path, monkeypatch):
+    # a full disk half-way through writing over a good checkpoint: the old one still loads, no .tmp is left
+    _, stopped_dir, iteration = stopped_run
+    shutil.copytree(stopped_dir, tmp_path / "runs" / "d")
+    path = str(tmp_path / "runs" / "d" / "checkpoint.pt")
+    good = torch.load(path, weights_only=True)
+    real_save = torch.save
+
+    def save_half_then_fail(obj, f):
+        real_save(obj, f)
+        with open(f, "r+b") as handle:
+            handle.truncate(os.path.getsize(f) // 2)
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(torch, "save", save_half_then_fail)
+    agent = ppo.Agent(4)
+    args = ppo.Args(batch_size=BATCH)
+    optimizer = torch.optim.Adam(agent.parameters())
+    with pytest.raises(SystemExit) as excinfo:
+        ppo.save_checkpoint(path, agent, optimizer, args, iteration + 1)
+    assert excinfo.value.code == (
+        f"error: writing {path} failed (No space left on device), so it is as it was before; make room and"
+        f" continue with --resume {os.path.dirname(path)}."
+    )
+    assert not os.path.exists(f"{path}.tmp")
+    again = torch.load(path, weights_only=True)
+    assert again["iteration"] == good["iteration"] == iteration
+    for name, tensor in good["model_state_dict"].items():
+        assert torch.equal(again["model_state_dict"][name], tensor), name
+
+
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_a_failure_after_training_keeps_the_checkpoint_to_redo_the_last_stage(algo, tmp_path, monkeypatch):
+    module = SCRIPTS[algo]
+
+    def broken_evaluation(*args, **kwargs):
+        raise RuntimeError("the evaluation broke")
+
+    monkeypatch.setattr(module, "evaluate", broken_evaluation)
+    monkeypatch.chdir(tmp_path)
+    args = args_for(module, run_name="last", eval_episodes=1, save_model=True, cuda=False)
+    with pytest.raises(SystemExit) as excinfo:
+        module.main(args)
+    assert excinfo.value.code == (
+        "error: the evaluation or model saving after training failed (RuntimeError: the evaluation broke); the trained"
+        " agent is kept in runs/last/checkpoint.pt: run again with --resume runs/last to redo them."
+    )
+    saved = torch.load(tmp_path / "runs" / "last" / "checkpoint.pt", weights_only=True)
+    assert saved["iteration"] == ITERATIONS and not saved["finished"]
+    monkeypatch.undo()
+    script = os.path.join(ROOT, f"{algo}_atari_envpool.py")
+    proc = subprocess.run(
+        [sys.executable, script, "--resume", "runs/last"], cwd=tmp_path, capture_output=True, text=True, timeout=600
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert f"iteration {ITERATIONS}/{ITERATIONS}" not in proc.stdout and "eval: 1 games, return " in proc.stdout
+    assert (tmp_path / "runs" / "last" / f"{algo}_atari_envpool.cleanrl_model").is_file()
+    assert torch.load(tmp_path / "runs" / "last" / "checkpoint.pt", weights_only=True)["finished"]
