@@ -17,7 +17,7 @@ from helpers import ROOT, hyperparameters, scalars
 @pytest.fixture
 def ablation(monkeypatch):
     """The tool, with P3O's module functions restored after each test."""
-    for name in ("gbae", "value_loss", "compute_betas"):
+    for name in ("gbae", "value_loss", "compute_betas", "ABLATION"):
         monkeypatch.setattr(p3o, name, getattr(p3o, name))
     from benchmark import p3o_ablation
 
@@ -110,3 +110,21 @@ def test_ablation_runs_are_named_apart_and_each_change_takes_effect(tmp_path):
         assert same_beta == (change != "batch-minmax"), change
         acted_on = {"gae": "losses/policy_loss", "value-beta-one": "losses/value_loss", "batch-minmax": "p3o/beta_std"}
         assert values[acted_on[change]][0] != plain[acted_on[change]][0], change
+        assert torch.load(os.path.join(run_dir, "checkpoint.pt"), weights_only=True)["ablation"] == change
+        # the checkpoint knows what made it: plain P3O does not continue an ablation's run, nor the other way round
+        plain_script = os.path.join(ROOT, "p3o_atari_envpool.py")
+        proc = subprocess.run([sys.executable, plain_script, "--resume", run_dir], capture_output=True, text=True)
+        assert proc.returncode == 1
+        assert proc.stderr == (
+            f"error: --resume {run_dir}/checkpoint.pt is a run of benchmark/p3o_ablation.py {change}; resume it with"
+            " that script.\n"
+        )
+        ablation_script = os.path.join(ROOT, "benchmark", "p3o_ablation.py")
+        proc = subprocess.run(
+            [sys.executable, ablation_script, change, "--resume", plain_dir], capture_output=True, text=True
+        )
+        assert proc.returncode == 1
+        assert proc.stderr == (
+            f"error: --resume {plain_dir}/checkpoint.pt is a run of p3o_atari_envpool.py; resume it with that script.\n"
+        )
+    assert torch.load(os.path.join(plain_dir, "checkpoint.pt"), weights_only=True)["ablation"] is None

@@ -4,6 +4,7 @@ their TensorBoard event files."""
 import glob
 import math
 import os
+import shutil
 import subprocess
 import sys
 
@@ -284,3 +285,75 @@ def test_evaluate_script_random_baseline_and_refusals(runs, tmp_path):
         with pytest.raises(SystemExit) as excinfo:
             evaluate.main(evaluate.Args(**kwargs))
         assert message in str(excinfo.value.code), kwargs
+
+
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_the_device_is_said_warned_about_and_recorded(runs, algo):
+    # the tests hide every GPU (conftest) while --cuda is on by default: the run says so and trains on the CPU
+    import json
+
+    proc, run_dirs = runs[algo, "Qbert-v5"]
+    assert proc.stdout.startswith("device: cpu\n")
+    build = f"built for CUDA {torch.version.cuda}" if torch.version.cuda else "a CPU-only build"
+    assert f"warning: --cuda is on but torch {torch.__version__} ({build}) finds no usable GPU" in proc.stderr
+    assert "|device|cpu|" in hyperparameters(run_dirs[0])
+    assert json.load(open(os.path.join(run_dirs[0], "eval.json")))["device"] == "cpu"
+
+
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_each_evaluation_game_replays_alone_on_the_seed_eval_json_lists(runs, algo):
+    # eval.json's seeds are the games that were played: each, replayed in an environment of its own seeded
+    # with the listed seed and the same greedy agent, gives the same return and length
+    import json
+
+    _, run_dirs = runs[algo, "Breakout-v5"]
+    report = json.load(open(os.path.join(run_dirs[0], "eval.json")))
+    module = SCRIPTS[algo]
+    saved = torch.load(os.path.join(run_dirs[0], f"{algo}_atari_envpool.cleanrl_model"), weights_only=True)
+    agent = module.Agent(saved["num_actions"])
+    agent.load_state_dict(saved["model_state_dict"])
+    for game in range(3):
+        env = module.make_env("Breakout-v5", 1, report["seeds"][game])
+        obs, _ = env.reset()
+        total, length, over = 0.0, 0, False
+        with torch.inference_mode():
+            while not over:
+                action = agent.actor(agent.hidden(torch.as_tensor(obs))).argmax(-1)
+                obs, _, terminated, truncated, info = env.step(action.numpy())
+                total, length = total + info["reward"][0], length + 1
+                over = bool(info["terminated"][0] or truncated[0])
+        env.close()
+        assert (total, length) == (report["returns"][game], report["lengths"][game]), game
+
+
+def test_evaluate_script_never_writes_into_a_run_and_is_not_counted_as_one(runs, tmp_path, monkeypatch):
+    from benchmark import evaluate, results
+
+    _, run_dirs = runs["ppo", "Breakout-v5"]
+    run_dir = tmp_path / "runs" / "trained"
+    shutil.copytree(run_dirs[0], run_dir)
+    before = (run_dir / "eval.json").read_bytes()
+    model = str(run_dir / "ppo_atari_envpool.cleanrl_model")
+    proc = evaluate_cli("--model-path", model, "--episodes", "2", "--run-dir", str(run_dir))
+    assert proc.returncode == 1
+    assert proc.stderr == f"error: --run-dir {run_dir} already exists; the evaluation writes a new folder of its own.\n"
+    assert (run_dir / "eval.json").read_bytes() == before
+    # an evaluation inside the run's folder is a group of its own for results.py, never a second run
+    proc = evaluate_cli("--model-path", model, "--episodes", "2", "--run-dir", str(run_dir / "eval"))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    table = results.main(results.Args(roots=(str(tmp_path / "runs"),), out=str(tmp_path / "out"), figures=False))
+    assert {algo: n for (_, algo), (_, _, n) in table["table"].items()} == {
+        "ppo_atari_envpool": 1,
+        "ppo_atari_envpool (evaluate.py)": 1,
+    }
+    # an evaluation that fails half-way leaves no folder behind
+    script = evaluate.load_script("ppo")
+
+    def broken(*args, **kwargs):
+        raise OSError("disk gone")
+
+    monkeypatch.setattr(script, "write_evaluation", broken)
+    with pytest.raises(OSError):
+        evaluate.main(evaluate.Args(model_path=model, episodes=1, run_dir=str(tmp_path / "half")))
+    assert not (tmp_path / "half").exists()
+    assert not [p for p in os.listdir(tmp_path) if not p.startswith(".") and p not in ("runs", "out")]

@@ -115,7 +115,7 @@ def test_a_second_call_skips_finished_pairs_and_remakes_the_tables(checked):
         ({"MODE": "atari"}, "error: MODE must be thesis or cleanrl, got 'atari'."),
         ({"TOTAL_TIMESTEPS": "1e6"}, "error: TOTAL_TIMESTEPS must be a positive whole number, got '1e6'."),
         ({"SEEDS": "1 two"}, "error: SEEDS must be whole numbers, got 'two'."),
-        ({"GAMES": "Breakout-v5 Pacman-v5"}, "error: --env-id Pacman-v5 is not an envpool environment. Did you mean"),
+        ({"GAMES": "Breakout-v5 Qbertt-v5"}, "error: --env-id Qbertt-v5 is not an envpool environment. Did you mean"),
         ({"SEEDS": "1 4294967296"}, "error: --seed must lie in"),
     ],
 )

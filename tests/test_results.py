@@ -210,3 +210,49 @@ def test_runs_named_with_run_name_are_grouped_by_their_logged_hyperparameters(tm
         ("Breakout-v5", PPO): (2.0, 0.0, 1),
         ("Qbert-v5", PPO): (7.0, 0.0, 1),
     }
+
+
+def test_a_folder_named_for_another_algorithm_than_it_logged_is_grouped_by_its_name_with_a_warning(tmp_path, capsys):
+    # a run copied or renamed to `{env_id}__{exp_name}__...`: the name the user sees in TensorBoard decides
+    for name, algo, value in [(f"Breakout-v5__{P3O}__1", P3O, 4.0), ("Breakout-v5__p3o-lr1e-3__1", P3O, 6.0)]:
+        writer = SummaryWriter(str(tmp_path / "runs" / name))
+        writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n|exp_name|{algo}|\n|seed|1|\n|env_id|Breakout-v5|")
+        writer.add_scalar("eval/episodic_return", value, 0)
+        writer.close()
+    result = results.main(results.Args(roots=(str(tmp_path / "runs"),), out=str(tmp_path / "o"), figures=False))
+    assert result["table"] == {("Breakout-v5", P3O): (4.0, 0.0, 1), ("Breakout-v5", "p3o-lr1e-3"): (6.0, 0.0, 1)}
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning: ")]
+    assert warnings == [
+        f"warning: {tmp_path}/runs/Breakout-v5__p3o-lr1e-3__1: the folder name says Breakout-v5 / p3o-lr1e-3 but the"
+        f" run logged Breakout-v5 / {P3O}; grouped by the folder name"
+    ]
+
+
+def test_above_reads_a_histogram_as_the_share_of_values_above_a_threshold(tmp_path):
+    # beta-like values in [0, 1], logged as TensorBoard histograms: the share above 0.5 per iteration, read from
+    # the buckets, is the true share to within the one bucket that straddles 0.5 (TensorBoard's ~10% buckets)
+    rng = np.random.default_rng(0)
+    writer = SummaryWriter(str(tmp_path / "runs" / f"Breakout-v5__{P3O}__1"))
+    truth = []
+    for i, step in enumerate(range(1000, 11_000, 1000)):
+        values = rng.beta(1 + i, 2.0, size=4096)
+        values[:10] = [0.0, 1.0, 0.5, 0.5, 0.25, 0.75, 0.49, 0.51, 0.999, 0.001]
+        writer.add_histogram("p3o/beta", values, step)
+        truth.append((values > 0.5).mean())
+    writer.close()
+    args = results.Args(roots=(str(tmp_path / "runs"),), out=str(tmp_path / "o"), figures=False)
+    args.tag, args.above, args.window_steps, args.table_name = "p3o/beta", 0.5, 5000, "beta_above"
+    result = results.main(args)
+    (run,), _ = results.find_runs(args.roots, above=0.5)
+    steps, shares = run.scalars["p3o/beta"]
+    assert list(steps) == list(range(1000, 11_000, 1000))
+    np.testing.assert_allclose(shares, truth, atol=0.02)
+    assert shares[-1] > shares[0] + 0.3  # the distributions move right, and so does the share
+    windows = result["windows"]["Breakout-v5", P3O]
+    assert windows[0][0] == pytest.approx(np.mean(shares[:4])) and windows[1][0] == pytest.approx(np.mean(shares[4:9]))
+    text = open(tmp_path / "o" / "beta_above_windows.md").read()
+    assert text.startswith("`p3o/beta share above 0.5` per window of 5,000 env steps")
+    # without --above a histogram is not read: this run has nothing else, so there is nothing to tabulate
+    args.above = None
+    with pytest.raises(SystemExit, match="no readable runs"):
+        results.main(args)

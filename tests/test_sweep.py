@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 
+import pytest
 import torch
 
 from helpers import ROOT
@@ -16,7 +17,10 @@ THESIS_GAMES = ["Breakout-v5", "Freeway-v5", "Seaquest-v5", "Riverraid-v5", "Qbe
 
 
 def sweep(env, cwd):
-    keep = {k: v for k, v in os.environ.items() if k not in ("GAMES", "SEEDS", "EXTRA_ARGS", "SLURM", "DRY_RUN")}
+    knobs = ("GAMES", "SEEDS", "EXTRA_ARGS", "SLURM", "DRY_RUN", "ALGOS", "WORKERS", "GROUP", "TOTAL_TIMESTEPS")
+    keep = {k: v for k, v in os.environ.items() if k not in knobs}
+    # the sweep checks every command with the training scripts' own parser, in this python
+    keep["PYTHON"] = sys.executable
     return subprocess.run(["bash", SWEEP], env=keep | env, cwd=cwd, capture_output=True, text=True, timeout=900)
 
 
@@ -52,10 +56,10 @@ def test_dry_run_slurm_prints_one_requeueing_job_array(tmp_path):
 
 
 def test_knobs_override_the_grid(tmp_path):
-    env = {"DRY_RUN": "1", "GAMES": "Pong-v5", "SEEDS": "7 8", "TOTAL_TIMESTEPS": "1000", "EXTRA_ARGS": "--num-envs 8"}
+    env = {"DRY_RUN": "1", "GAMES": "Pong-v5", "SEEDS": "7 8", "TOTAL_TIMESTEPS": "4096", "EXTRA_ARGS": "--num-envs 8"}
     lines = sweep(env, tmp_path).stdout.strip().splitlines()
     assert len(lines) == 4
-    assert all("--env-id Pong-v5" in x and "--total-timesteps 1000" in x and x.endswith("--num-envs 8") for x in lines)
+    assert all("--env-id Pong-v5" in x and "--total-timesteps 4096" in x and x.endswith("--num-envs 8") for x in lines)
 
 
 def test_local_mode_resumes_unfinished_runs_runs_workers_at_a_time_and_skips_finished_ones(tmp_path):
@@ -111,10 +115,49 @@ def test_local_mode_resumes_unfinished_runs_runs_workers_at_a_time_and_skips_fin
 
 
 def test_local_mode_fails_with_status_1_when_a_run_fails(tmp_path):
-    env = {"GAMES": "NoSuchGame-v5", "SEEDS": "1", "GROUP": "bad", "PYTHON": sys.executable, "WORKERS": "2"}
-    proc = sweep(env, tmp_path)
+    # a run that fails after the knobs were checked: a file where its run folder would go
+    env = {"GAMES": "Breakout-v5", "SEEDS": "1", "GROUP": "bad", "PYTHON": sys.executable, "WORKERS": "2"}
+    (tmp_path / "runs" / "bad").mkdir(parents=True)
+    (tmp_path / "runs" / "bad" / "Breakout-v5__p3o_atari_envpool__1").write_text("in the way")
+    proc = sweep(env | {"EXTRA_ARGS": "--num-envs 4 --num-steps 32 --total-timesteps 128 --eval-episodes 0"}, tmp_path)
     assert proc.returncode == 1
-    for algo in ("ppo", "p3o"):
-        log = f"runs/bad/logs/NoSuchGame-v5__{algo}_atari_envpool__1.log"
-        assert f"FAILED (see {log}): " in proc.stdout
-        assert "error: --env-id NoSuchGame-v5 is not an envpool environment." in (tmp_path / log).read_text()
+    log = "runs/bad/logs/Breakout-v5__p3o_atari_envpool__1.log"
+    assert f"FAILED (see {log}): " in proc.stdout
+    assert (
+        "error: cannot create the run folder runs/bad/Breakout-v5__p3o_atari_envpool__1" in (tmp_path / log).read_text()
+    )
+    assert "done:  " in proc.stdout  # the other run of the grid went on
+
+
+@pytest.mark.parametrize(
+    "knobs,sentence",
+    [
+        ({"GAMES": "Breakout-v5 Qbertt-v5"}, "error: --env-id Qbertt-v5 is not an envpool environment. Did you mean "),
+        ({"GAMES": "CartPole-v1"}, "error: --env-id CartPole-v1 is an envpool environment but not an Atari game."),
+        ({"GAMES": " "}, "error: GAMES is empty."),
+        ({"SEEDS": "1 2x"}, "error: SEEDS must be whole numbers, got '2x'."),
+        ({"SEEDS": "4294967296"}, "error: --seed must lie in [0, "),
+        ({"TOTAL_TIMESTEPS": "1e6"}, "error: TOTAL_TIMESTEPS must be a positive whole number, got '1e6'."),
+        ({"TOTAL_TIMESTEPS": "0"}, "error: TOTAL_TIMESTEPS must be a positive whole number, got '0'."),
+        ({"WORKERS": "0"}, "error: WORKERS must be a whole number of at least 1, got '0'."),
+        ({"WORKERS": "two"}, "error: WORKERS must be a whole number of at least 1, got 'two'."),
+        ({"ALGOS": "ppo a2c"}, "error: ALGOS must be ppo, p3o or both, got 'a2c'."),
+        ({"SIGNAL_SECONDS": "-5"}, "error: SIGNAL_SECONDS must be a whole number, got '-5'."),
+        ({"EXTRA_ARGS": "--learning-rate nan"}, "error: --learning-rate must be a finite number, got nan."),
+        ({"GROUP": "../elsewhere"}, "error: --run-name '../elsewhere/Breakout-v5__ppo_atari_envpool__1' must be a"),
+    ],
+)
+@pytest.mark.parametrize("mode", [{}, {"SLURM": "1"}, {"DRY_RUN": "1"}], ids=["local", "slurm", "dry-run"])
+def test_bad_knobs_are_refused_before_anything_starts_or_is_submitted(knobs, sentence, mode, tmp_path):
+    env = {"GAMES": "Breakout-v5", "SEEDS": "1", "PYTHON": sys.executable, "SBATCH_ARGS": "--no-such-sbatch"}
+    # tiny runs, should a refusal ever fail to come
+    env |= {"TOTAL_TIMESTEPS": "128", "EXTRA_ARGS": "--num-envs 4 --num-steps 32 --num-minibatches 2 --eval-episodes 0"}
+    proc = sweep(env | mode | knobs, tmp_path)
+    assert proc.returncode == 1 and proc.stdout == ""
+    assert proc.stderr.startswith(sentence) and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert os.listdir(tmp_path) == []
+
+
+def test_algos_runs_one_script_of_the_grid(tmp_path):
+    lines = sweep({"DRY_RUN": "1", "GAMES": "Qbert-v5", "SEEDS": "1 2", "ALGOS": "p3o"}, tmp_path).stdout.splitlines()
+    assert len(lines) == 2 and all("p3o_atari_envpool.py" in line for line in lines)
