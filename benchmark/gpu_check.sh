@@ -59,10 +59,12 @@ step() {
 # after a tiny run: the device it said, finite losses, its eval.json, as OUT/tiny_<algo>.json
 read_back() {
     $PYTHON - "$work/runs/$1" "$device" "$OUT/tiny_$1.json" <<'PY'
-import json, math, sys
+import json, math, os, sys
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 run, device, out = sys.argv[1:]
+if not os.path.isfile(f"{run}/eval.json"):
+    sys.exit("nothing to read back: the tiny run wrote no eval.json")
 acc = EventAccumulator(run, size_guidance={"scalars": 0})
 acc.Reload()
 losses = {t: [e.value for e in acc.Scalars(t)] for t in acc.Tags()["scalars"] if t.startswith("losses/")}

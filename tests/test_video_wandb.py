@@ -184,3 +184,16 @@ def test_video_without_evaluation_and_track_without_wandb_are_refused(module, tm
         == "error: --track needs wandb: run with `uv run --extra wandb ...` (or `pip install wandb`)."
     )
     assert not (tmp_path / "runs").exists()
+
+
+def test_track_without_a_wandb_login_is_one_sentence_before_training(tmp_path):
+    # no API key anywhere (a fresh HOME, no WANDB_API_KEY) and not offline: wandb cannot start
+    env = {k: v for k, v in os.environ.items() if not k.startswith("WANDB_")} | {"HOME": str(tmp_path), "NETRC": ""}
+    cmd = [sys.executable, os.path.join(ROOT, "p3o_atari_envpool.py"), *TINY, "--track", "--no-cuda", "--run-name", "t"]
+    proc = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 1
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("error: W&B did not start (") and last.endswith(
+        "); log in with `wandb login`, or set WANDB_MODE=offline to log locally and `wandb sync` later."
+    )
+    assert "Traceback" not in proc.stderr and "iteration 1/" not in proc.stdout
