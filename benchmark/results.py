@@ -383,22 +383,30 @@ def human_normalised(score, env):
     return (score - random_score) / (human_score - random_score)
 
 
-def across_games(runs, tag, last, p3o, ppo, reps, seed) -> tuple[str | None, list[str]]:
-    """IQM of human-normalised scores with stratified-bootstrap 95% CIs, and the probability that P3O
-    improves on PPO, with rliable (Agarwal et al. 2021)."""
+def per_game_scores(runs, tag, last, algos) -> dict:
+    """env -> algo -> the per-run statistics of the tag, for the algorithms named."""
+    per = {}
+    for run in runs:
+        stat = run_statistic(run, tag, last)
+        if stat is not None and run.algo in algos:
+            per.setdefault(run.env, {}).setdefault(run.algo, []).append(stat)
+    return per
+
+
+def across_games(runs, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tuple[str | None, list[str]]:
+    """The interquartile mean, median and mean of human-normalised scores with stratified-bootstrap 95% CIs,
+    the probability that P3O improves on PPO, and (with `figure_path`) the performance profile, with rliable
+    (Agarwal et al. 2021)."""
     from rliable import library as rly
     from rliable import metrics
 
     notes = []
     per = {}
-    for run in runs:
-        stat = run_statistic(run, tag, last)
-        if stat is None or run.algo not in (p3o, ppo):
+    for env, algos in per_game_scores(runs, tag, last, (p3o, ppo)).items():
+        if env.split("-")[0] not in REFERENCE_SCORES:
+            notes.append(f"{env}: no human/random reference score, left out of the across-game comparison")
             continue
-        if run.env.split("-")[0] not in REFERENCE_SCORES:
-            notes.append(f"{run.env}: no human/random reference score, left out of the across-game comparison")
-            continue
-        per.setdefault(run.env, {}).setdefault(run.algo, []).append(human_normalised(stat, run.env))
+        per[env] = {algo: [human_normalised(x, env) for x in stats] for algo, stats in algos.items()}
     games = sorted(env for env, algos in per.items() if p3o in algos and ppo in algos)
     if not games:
         return None, sorted(set(notes))
@@ -408,31 +416,121 @@ def across_games(runs, tag, last, p3o, ppo, reps, seed) -> tuple[str | None, lis
     scores = {algo: np.array([[per[env][algo][i] for env in games] for i in range(n)]) for algo in (p3o, ppo)}
     state = np.random.RandomState(seed)
     pair = f"{p3o},{ppo}"
+    aggregates = [
+        ("IQM", metrics.aggregate_iqm),
+        ("median", metrics.aggregate_median),
+        ("mean", metrics.aggregate_mean),
+    ]
     with warnings.catch_warnings():
         # rliable passes the seeded RandomState on to arch's bootstrap, which warns that the argument is deprecated
         warnings.filterwarnings("ignore", message="random_state is deprecated", category=FutureWarning)
-        iqm, iqm_ci = rly.get_interval_estimates(
-            scores, lambda x: np.array([metrics.aggregate_iqm(x)]), reps=reps, random_state=state
+        point, ci = rly.get_interval_estimates(
+            scores, lambda x: np.array([f(x) for _, f in aggregates]), reps=reps, random_state=state
         )
         poi, poi_ci = rly.get_interval_estimates(
             {pair: (scores[p3o], scores[ppo])}, metrics.probability_of_improvement, reps=reps, random_state=state
         )
+        if figure_path:
+            taus = np.linspace(min(s.min() for s in scores.values()), max(s.max() for s in scores.values()), 101)
+            profiles, profile_cis = rly.create_performance_profile(scores, taus, reps=reps)
     lines = [
         f"Across {len(games)} game(s) ({', '.join(games)}), {n} run(s) each, `{tag}`"
         + (f" (last {last})" if last else "")
-        + f"; {reps} stratified-bootstrap replications (rliable).",
+        + f", human-normalised; {reps} stratified-bootstrap replications (rliable). The IQM is over every run of"
+        " every game; the median and mean are over the games, of each game's mean over its runs.",
         "",
-        "| algorithm | IQM human-normalised score | 95% CI |",
-        "|---|---|---|",
+        "| algorithm | " + " | ".join(f"{name} | 95% CI" for name, _ in aggregates) + " |",
+        "|---|" + "---|---|" * len(aggregates),
     ]
     for algo in (p3o, ppo):
-        lines.append(f"| {algo} | {iqm[algo][0]:.3f} | [{iqm_ci[algo][0][0]:.3f}, {iqm_ci[algo][1][0]:.3f}] |")
+        cells = [f"{point[algo][k]:.3f} | [{ci[algo][0][k]:.3f}, {ci[algo][1][k]:.3f}]" for k in range(len(aggregates))]
+        lines.append(f"| {algo} | " + " | ".join(cells) + " |")
     lines += [
         "",
         f"P({p3o} > {ppo}) = {float(np.squeeze(poi[pair])):.3f}, 95% CI "
         f"[{float(np.squeeze(poi_ci[pair][0])):.3f}, {float(np.squeeze(poi_ci[pair][1])):.3f}]",
     ]
+    if figure_path:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        from rliable import plot_utils
+
+        fig, ax = plt.subplots(figsize=(6.4, 4.2))
+        plot_utils.plot_performance_profiles(profiles, taus, performance_profile_cis=profile_cis, ax=ax)
+        ax.set_title(f"performance profile over {len(games)} game(s), {n} run(s) each")
+        ax.legend([p3o, ppo], loc="upper right")
+        fig.tight_layout()
+        fig.savefig(figure_path, dpi=120)
+        plt.close(fig)
+        lines += ["", f"Performance profile (fraction of runs above each human-normalised score): `{figure_path}`"]
     return "\n".join(lines) + "\n", sorted(set(notes))
+
+
+def per_game_tests(runs, tag, last, p3o, ppo) -> str | None:
+    """Per game, whether P3O and PPO can be told apart: the difference of the means with Welch's 95% CI and
+    two-sided p, and the exact two-sided Mann-Whitney U test (scipy)."""
+    from scipy import stats
+
+    per = per_game_scores(runs, tag, last, (p3o, ppo))
+    games = sorted(env for env, algos in per.items() if len(algos.get(p3o, [])) > 1 and len(algos.get(ppo, [])) > 1)
+    if not games:
+        return None
+    lines = [
+        f"`{tag}`" + (f" (last {last})" if last else "") + f": per game, {p3o} against {ppo} over their runs:"
+        " difference of the means with Welch's 95% confidence interval and two-sided p, and the exact two-sided"
+        " Mann-Whitney U test (with 3 runs against 3 its smallest possible p is 0.1).",
+        "",
+        "| game | n | difference of means | Welch 95% CI | Welch p | Mann-Whitney U | exact p |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for env in games:
+        a, b = np.array(per[env][p3o]), np.array(per[env][ppo])
+        welch = stats.ttest_ind(a, b, equal_var=False)
+        lo, hi = welch.confidence_interval(0.95)
+        u = stats.mannwhitneyu(a, b, alternative="two-sided", method="exact")
+        lines.append(
+            f"| {env} | {len(a)} vs {len(b)} | {number(a.mean() - b.mean())} | [{number(lo)}, {number(hi)}] |"
+            f" {welch.pvalue:.3f} | {u.statistic:g} | {u.pvalue:.3f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def write_games_figure(runs, out, grid_points, name) -> str | None:
+    """One figure of every game's training return curves side by side (mean ± s.e. over runs), as the
+    thesis's figures 5.1/5.5."""
+    envs = sorted({r.env for r in runs if "charts/episodic_return" in r.scalars})
+    if len(envs) < 2:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cols = min(3, len(envs))
+    rows = -(-len(envs) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.4 * rows), squeeze=False)
+    for ax, env in zip(axes.flat, envs, strict=False):
+        env_runs = [r for r in runs if r.env == env]
+        for algo, (grid, centre, band) in figure_curves(env_runs, "episodic_return", grid_points).items():
+            n = sum(1 for r in env_runs if r.algo == algo and "charts/episodic_return" in r.scalars)
+            (line,) = ax.plot(grid, centre, label=f"{algo} (n={n})")
+            if band is not None:
+                ax.fill_between(grid, centre - band, centre + band, color=line.get_color(), alpha=0.25)
+        ax.set_title(env)
+        ax.set_xlabel("environment steps")
+        ax.set_ylabel("episodic return")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize="small")
+    for ax in axes.flat[len(envs) :]:
+        ax.set_visible(False)
+    fig.suptitle("training return (full games), mean ± s.e. over runs")
+    fig.tight_layout()
+    path = os.path.join(out, f"{name}.png")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def main(args: Args) -> dict:
@@ -467,8 +565,9 @@ def main(args: Args) -> dict:
     if result["windows"]:
         print(write_window_table(result["windows"], args.out, args.table_name, label, args.window_steps))
         print(f"wrote {os.path.join(args.out, args.table_name)}_windows.md and .csv")
+    profile = os.path.join(args.out, f"{args.table_name}_performance_profile.png") if args.figures else None
     comparison, notes = across_games(
-        runs, args.tag, args.last, args.p3o_name, args.ppo_name, args.bootstrap_reps, args.seed
+        runs, args.tag, args.last, args.p3o_name, args.ppo_name, args.bootstrap_reps, args.seed, profile
     )
     for note in notes:
         print(f"note: {note}", file=sys.stderr)
@@ -477,8 +576,17 @@ def main(args: Args) -> dict:
             f.write(comparison)
         print(comparison)
         result["across_games"] = comparison
+    tests = per_game_tests(runs, args.tag, args.last, args.p3o_name, args.ppo_name)
+    if tests:
+        with open(os.path.join(args.out, f"{args.table_name}_per_game_tests.md"), "w") as f:
+            f.write(tests)
+        print(tests)
+    result["per_game_tests"] = tests
     if args.figures:
         result["figures"] = write_figures(runs, args.out, args.grid_points)
+        games = write_games_figure(runs, args.out, args.grid_points, "games__episodic_return")
+        result["figures"] += [games] if games else []
+        result["figures"] += [profile] if comparison else []
         print(f"wrote {len(result['figures'])} figures to {args.out}/")
         for path in result["figures"]:
             print(f"  {path}")

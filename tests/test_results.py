@@ -256,3 +256,36 @@ def test_above_reads_a_histogram_as_the_share_of_values_above_a_threshold(tmp_pa
     args.above = None
     with pytest.raises(SystemExit, match="no readable runs"):
         results.main(args)
+
+
+def test_across_games_median_mean_and_the_per_game_tests(root, tmp_path):
+    from scipy import stats
+
+    result = results.main(results.Args(roots=(root,), out=str(tmp_path), figures=False, bootstrap_reps=200))
+    text = result["across_games"]
+    assert "| algorithm | IQM | 95% CI | median | 95% CI | mean | 95% CI |" in text
+    for algo, (breakout, qbert) in {P3O: ([10, 20, 30], [4.5, 100, 200]), PPO: ([5, 7, 9], [50, 150, 250])}.items():
+        scores = [(x - 1.7) / (30.5 - 1.7) for x in breakout] + [(x - 163.9) / (13455.0 - 163.9) for x in qbert]
+        row = re.search(rf"\| {algo} \|(.*)\|\n", text).group(1).split("|")
+        per_game = [np.mean(scores[:3]), np.mean(scores[3:])]  # rliable: median and mean over games of their means
+        assert float(row[2]) == pytest.approx(np.median(per_game), abs=5e-4)
+        assert float(row[4]) == pytest.approx(np.mean(per_game), abs=5e-4)
+    tests = result["per_game_tests"]
+    assert open(tmp_path / "table_per_game_tests.md").read() == tests
+    # Breakout: P3O (10, 20, 30) against PPO (5, 7, 9): mean difference 13, every P3O run above every PPO run
+    row = re.search(
+        r"\| Breakout-v5 \| 3 vs 3 \| 13\.0 \| \[(-?[\d.]+), (-?[\d.]+)\] \| ([\d.]+) \| 9 \| ([\d.]+) \|", tests
+    )
+    welch = stats.ttest_ind([10, 20, 30], [5, 7, 9], equal_var=False)
+    lo, hi = welch.confidence_interval(0.95)
+    assert (float(row.group(1)), float(row.group(2))) == (pytest.approx(lo, abs=0.05), pytest.approx(hi, abs=0.05))
+    assert float(row.group(3)) == pytest.approx(welch.pvalue, abs=5e-4) and float(row.group(4)) == 0.1
+    assert "| Qbert-v5 | 3 vs 3 | -48.5 | " in tests  # (4.5 + 100 + 200) / 3 - 150
+
+
+def test_the_games_figure_and_the_performance_profile(root, tmp_path):
+    result = results.main(results.Args(roots=(root,), out=str(tmp_path), bootstrap_reps=200))
+    names = {os.path.basename(p) for p in result["figures"]}
+    assert {"games__episodic_return.png", "table_performance_profile.png"} <= names
+    for name in ("games__episodic_return.png", "table_performance_profile.png"):
+        assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and (tmp_path / name).stat().st_size > 10_000
