@@ -9,6 +9,7 @@ import json
 import math
 import os
 import random
+import shutil
 import signal
 import socket
 import sys
@@ -540,10 +541,12 @@ def save(path: str, agent: Agent, args: Args, **extra) -> None:
     except (OSError, RuntimeError) as e:
         if os.path.exists(f"{path}.tmp"):
             os.remove(f"{path}.tmp")
-        why = e.strerror if isinstance(e, OSError) and e.strerror else str(e).splitlines()[0]
+        why = e.strerror if isinstance(e, OSError) and e.strerror else str(e).strip().splitlines()[0]
+        free = shutil.disk_usage(os.path.dirname(os.path.abspath(path))).free  # torch's own errors rarely say
         before = "is as it was before" if os.path.exists(path) else "was not written"
         sys.exit(
-            f"error: writing {path} failed ({why}), so it {before}; make room and continue with"
+            f"error: writing {path} failed ({why}; {free / 2**20:.0f} MB free there), so it {before}; make room and"
+            " continue with"
             f" --resume {os.path.dirname(path)}."
         )
 

@@ -389,9 +389,10 @@ def test_a_failed_checkpoint_write_leaves_the_previous_checkpoint_whole(stopped_
     optimizer = torch.optim.Adam(agent.parameters())
     with pytest.raises(SystemExit) as excinfo:
         ppo.save_checkpoint(path, agent, optimizer, args, iteration + 1)
-    assert excinfo.value.code == (
-        f"error: writing {path} failed (No space left on device), so it is as it was before; make room and"
-        f" continue with --resume {os.path.dirname(path)}."
+    message = excinfo.value.code
+    assert message.startswith(f"error: writing {path} failed (No space left on device; ")
+    assert message.endswith(
+        f" MB free there), so it is as it was before; make room and continue with --resume {os.path.dirname(path)}."
     )
     assert not os.path.exists(f"{path}.tmp")
     again = torch.load(path, weights_only=True)
@@ -427,3 +428,27 @@ def test_a_failure_after_training_keeps_the_checkpoint_to_redo_the_last_stage(al
     assert f"iteration {ITERATIONS}/{ITERATIONS}" not in proc.stdout and "eval: 1 games, return " in proc.stdout
     assert (tmp_path / "runs" / "last" / f"{algo}_atari_envpool.cleanrl_model").is_file()
     assert torch.load(tmp_path / "runs" / "last" / "checkpoint.pt", weights_only=True)["finished"]
+
+
+def test_a_full_disk_stops_the_run_with_a_sentence_and_keeps_its_checkpoint(tmp_path):
+    # a real full disk: runs/ is a 30 MB tmpfs, room for one 20 MB checkpoint and not for its replacement
+    if os.geteuid() != 0:
+        pytest.skip("mounting a small tmpfs needs root")
+    (tmp_path / "runs").mkdir()
+    mount = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=30M", "tmpfs", str(tmp_path / "runs")], capture_output=True
+    )
+    if mount.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {mount.stderr.decode().strip()}")
+    try:
+        proc = run("ppo", tmp_path, "--run-name", "full", "--checkpoint-every", "1")
+        assert proc.returncode == 1, proc.stdout
+        (line,) = [x for x in proc.stderr.splitlines() if x.startswith("error: ")]
+        assert line.startswith("error: writing runs/full/checkpoint.pt failed (") and line.endswith(
+            " MB free there), so it is as it was before; make room and continue with --resume runs/full."
+        )
+        assert "Traceback" not in proc.stderr and "iteration 2/" in proc.stdout
+        saved = torch.load(tmp_path / "runs" / "full" / "checkpoint.pt", weights_only=True)
+        assert saved["iteration"] == 1 and not (tmp_path / "runs" / "full" / "checkpoint.pt.tmp").exists()
+    finally:
+        subprocess.run(["umount", str(tmp_path / "runs")], check=True)
