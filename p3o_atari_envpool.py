@@ -512,11 +512,8 @@ def check_args(args: Args) -> None:
     bad += [f"{flag[n]} must lie in [0, 1], got {a[n]}." for n in ("gamma", "gae_lambda") if not 0 <= a[n] <= 1]
     not_negative = ("checkpoint_every", "eval_episodes", "ent_coef")
     bad += [f"{flag[n]} must be 0 or more, got {a[n]}." for n in not_negative if not a[n] >= 0]
-    bad += (
-        [f"--target-kl must be positive, got {args.target_kl}."]
-        if args.target_kl is not None and not args.target_kl > 0
-        else []
-    )
+    if args.target_kl is not None and not args.target_kl > 0:
+        bad.append(f"--target-kl must be positive, got {args.target_kl}.")
     bad += [f"--ewma-alpha must lie in (0, 1], got {args.ewma_alpha}."] if not 0 < args.ewma_alpha <= 1 else []
     bad += [f"{flag[n]} is computed from the other sizes, so it cannot be set (got {a[n]})." for n in COMPUTED if a[n]]
     for n in ("exp_name", "run_name"):
@@ -541,21 +538,20 @@ def check_args(args: Args) -> None:
         )
     if not bad and args.total_timesteps < batch:
         bad.append(f"--total-timesteps {args.total_timesteps} is less than one batch ({batch}): no update would run.")
-    # envpool takes seeds below 2^31 (and python's and numpy's none below 0); the run derives seed + i for env i
-    # of a rollout resumed at any iteration, and seed + 1,000,000 + i for evaluation game i
-    derived = (
-        max((args.total_timesteps // batch + 1) * args.num_envs, 1_000_000 + args.eval_episodes) - 1 if not bad else 0
-    )
-    if not bad and derived > 2**31 - 1:
-        bad.append(
-            f"the run would derive seeds up to --seed + {derived} (evaluation games and iterations x envs),"
-            " past envpool's 2^31 - 1: fewer --eval-episodes or --total-timesteps."
-        )
-    if not bad and not 0 <= args.seed <= 2**31 - 1 - derived:
-        bad.append(
-            f"--seed must lie in [0, {2**31 - 1 - derived}] (envpool seeds stay below 2^31, and this run derives"
-            f" seeds up to --seed + {derived}), got {args.seed}."
-        )
+    if not bad:
+        # envpool takes seeds below 2^31 (numpy none below 0); the run derives seed + i for env i of a rollout
+        # resumed at any iteration, and seed + 1,000,000 + i for evaluation game i
+        derived = max((args.total_timesteps // batch + 1) * args.num_envs, 1_000_000 + args.eval_episodes) - 1
+        if derived > 2**31 - 1:
+            bad.append(
+                f"the run would derive seeds up to --seed + {derived} (evaluation games and iterations x envs),"
+                " past envpool's 2^31 - 1: fewer --eval-episodes or --total-timesteps."
+            )
+        elif not 0 <= args.seed <= 2**31 - 1 - derived:
+            bad.append(
+                f"--seed must lie in [0, {2**31 - 1 - derived}] (envpool seeds stay below 2^31, and this run"
+                f" derives seeds up to --seed + {derived}), got {args.seed}."
+            )
     atari = [i for i in envpool.list_all_envs() if envpool.registration.registry.specs[i][0] == "envpool.atari"]
     if args.env_id not in atari:
         known = args.env_id in envpool.list_all_envs()
@@ -596,9 +592,8 @@ def save(path: str, agent: Agent, args: Args, **extra) -> None:
         free = shutil.disk_usage(os.path.dirname(os.path.abspath(path))).free  # torch's own errors rarely say
         before = "is as it was before" if os.path.exists(path) else "was not written"
         sys.exit(
-            f"error: writing {path} failed ({why}; {free / 2**20:.0f} MB free there), so it {before}; make room and"
-            " continue with"
-            f" --resume {os.path.dirname(path)}."
+            f"error: writing {path} failed ({why}; {free / 2**20:.0f} MB free there), so it {before}; make room"
+            f" and continue with --resume {os.path.dirname(path)}."
         )
 
 
