@@ -300,30 +300,36 @@ def test_the_device_is_said_warned_about_and_recorded(runs, algo):
     assert json.load(open(os.path.join(run_dirs[0], "eval.json")))["device"] == "cpu"
 
 
-@pytest.mark.parametrize("algo", SCRIPTS)
-def test_each_evaluation_game_replays_alone_on_the_seed_eval_json_lists(runs, algo):
-    # eval.json's seeds are the games that were played: each, replayed in an environment of its own seeded
-    # with the listed seed and the same greedy agent, gives the same return and length
-    import json
+def play_alone(module, agent, env_id, seed):
+    """One game in an environment of its own seeded `seed`, the most probable action each step:
+    (return, length). Independent of the scripts' `evaluate`."""
+    env = module.make_env(env_id, 1, seed)
+    obs, _ = env.reset()
+    total, length, over = 0.0, 0, False
+    with torch.inference_mode():
+        while not over:
+            action = agent.actor(agent.hidden(torch.as_tensor(obs))).argmax(-1)
+            obs, _, terminated, truncated, info = env.step(action.numpy())
+            total, length = total + float(info["reward"][0]), length + 1
+            over = bool(info["terminated"][0] or truncated[0])
+    env.close()
+    return total, length
 
-    _, run_dirs = runs[algo, "Breakout-v5"]
-    report = json.load(open(os.path.join(run_dirs[0], "eval.json")))
+
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_each_evaluation_game_replays_alone_on_the_seed_eval_json_lists(algo):
+    # the seeds an evaluation reports are the games it played: each game, replayed in an environment of its
+    # own seeded with its listed seed by the same greedy agent, gives the same return and length
     module = SCRIPTS[algo]
-    saved = torch.load(os.path.join(run_dirs[0], f"{algo}_atari_envpool.cleanrl_model"), weights_only=True)
-    agent = module.Agent(saved["num_actions"])
-    agent.load_state_dict(saved["model_state_dict"])
-    for game in range(3):
-        env = module.make_env("Breakout-v5", 1, report["seeds"][game])
-        obs, _ = env.reset()
-        total, length, over = 0.0, 0, False
-        with torch.inference_mode():
-            while not over:
-                action = agent.actor(agent.hidden(torch.as_tensor(obs))).argmax(-1)
-                obs, _, terminated, truncated, info = env.step(action.numpy())
-                total, length = total + info["reward"][0], length + 1
-                over = bool(info["terminated"][0] or truncated[0])
-        env.close()
-        assert (total, length) == (report["returns"][game], report["lengths"][game]), game
+    torch.manual_seed(0)
+    agent = module.Agent(6)  # Qbert's 6 actions; an untrained agent loses its lives within a few hundred steps
+    report = module.evaluate(agent, "Qbert-v5", 4, 1_000_003, True, torch.device("cpu"))
+    assert report["seeds"] == [1_000_003 + i for i in range(4)]
+    for game, seed in enumerate(report["seeds"]):
+        assert play_alone(module, agent, "Qbert-v5", seed) == (report["returns"][game], report["lengths"][game])
+    # and the comparison can fail: the neighbouring seeds play other games
+    played = list(zip(report["returns"], report["lengths"], strict=True))
+    assert [play_alone(module, agent, "Qbert-v5", seed + 1) for seed in report["seeds"]] != played
 
 
 def test_evaluate_script_never_writes_into_a_run_and_is_not_counted_as_one(runs, tmp_path, monkeypatch):
