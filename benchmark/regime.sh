@@ -3,7 +3,8 @@
 # "Which part of the regime decides it"). Five factors differ between CleanRL's Atari sizes, where P3O does
 # not learn, and the thesis's regime scaled to 16 envs, where it does: learning rate, its annealing, update
 # epochs, rollout length and number of envs. Each configuration below moves one of them from one end to
-# the other; P3O runs in every configuration, PPO at the two ends.
+# the other; P3O runs in every configuration, PPO at the two ends and where P3O's result called for a PPO row
+# to read it against (CleanRL's sizes with lr 1e-3, the thesis regime with 8 envs: P3O above PPO's end points).
 #
 # Each configuration is one call of benchmark/p3o_vs_ppo.sh (GROUP=regime/<config>, two runs at a time, one
 # core each), so calling this again skips finished runs and resumes unfinished ones from their checkpoints.
@@ -24,7 +25,7 @@ export PYTHON
 # config: which scripts, and the five factors (everything else the scripts' defaults; annealing is on by default)
 cleanrl="--num-envs 8 --num-steps 128 --update-epochs 4 --learning-rate 2.5e-4 --num-minibatches 4"
 thesis="--num-envs 16 --num-steps 256 --update-epochs 8 --learning-rate 1e-3 --num-minibatches 4 --no-anneal-lr"
-declare -A ALGOS_OF=([cleanrl]="ppo p3o" [thesis]="ppo p3o")
+declare -A ALGOS_OF=([cleanrl]="ppo p3o" [thesis]="ppo p3o" [cleanrl_lr]="ppo p3o" [thesis_envs]="ppo p3o")
 declare -A FLAGS=(
     [cleanrl]="$cleanrl"
     [cleanrl_lr]="--num-envs 8 --num-steps 128 --update-epochs 4 --learning-rate 1e-3 --num-minibatches 4"
