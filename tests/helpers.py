@@ -1,10 +1,19 @@
-"""What several test files share: the repository's root and a run's TensorBoard output read back."""
+"""What several test files share: the repository's root, a run's TensorBoard output read back, and a benchmark
+driver run with its knobs."""
 
 import os
+import subprocess
+import sys
 
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def run_driver(script, cwd, knobs, timeout) -> subprocess.CompletedProcess:
+    """A benchmark shell script run in cwd with its knobs as environment variables and this Python as PYTHON."""
+    env = os.environ | {"PYTHON": sys.executable} | knobs
+    return subprocess.run(["bash", script], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
 
 
 def events(run_dir) -> EventAccumulator:

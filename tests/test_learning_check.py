@@ -5,13 +5,11 @@ call that skips every pair, and its refusals."""
 import csv
 import json
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
-from helpers import ROOT, hyperparameters
+from helpers import ROOT, hyperparameters, run_driver
 
 CHECK = os.path.join(ROOT, "benchmark", "learning_check.sh")
 STEPS = 4096  # one iteration of 16 envs x 256 steps
@@ -20,8 +18,7 @@ GAMES = ("MsPacman-v5", "Breakout-v5")  # MsPacman has its own alpha (0.75), Bre
 
 def learning_check(cwd, out, **knobs):
     knobs = {"TOTAL_TIMESTEPS": str(STEPS), "SEEDS": "1 2", "GAMES": " ".join(GAMES), "OUT": str(out)} | knobs
-    env = os.environ | {"PYTHON": sys.executable}
-    return subprocess.run(["bash", CHECK], cwd=cwd, env=env | knobs, capture_output=True, text=True, timeout=2400)
+    return run_driver(CHECK, cwd, knobs, 2400)
 
 
 @pytest.fixture(scope="module")

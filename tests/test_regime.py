@@ -4,12 +4,10 @@ configuration refused."""
 
 import csv
 import os
-import subprocess
-import sys
 
 import pytest
 
-from helpers import ROOT, hyperparameters, scalars
+from helpers import ROOT, hyperparameters, run_driver, scalars
 
 REGIME = os.path.join(ROOT, "benchmark", "regime.sh")
 STEPS = 1024  # one iteration of CleanRL's 8 envs x 128 steps
@@ -17,9 +15,7 @@ CONFIG = "cleanrl_lr"  # CleanRL's sizes with the thesis's learning rate; both s
 
 
 def regime(cwd, out, **knobs):
-    knobs = {"TOTAL_TIMESTEPS": str(STEPS), "SEEDS": "1", "OUT": str(out)} | knobs
-    env = os.environ | {"PYTHON": sys.executable}
-    return subprocess.run(["bash", REGIME], cwd=cwd, env=env | knobs, capture_output=True, text=True, timeout=1200)
+    return run_driver(REGIME, cwd, {"TOTAL_TIMESTEPS": str(STEPS), "SEEDS": "1", "OUT": str(out)} | knobs, 1200)
 
 
 @pytest.fixture(scope="module")
