@@ -32,3 +32,10 @@ def scalars(run_dir) -> dict[str, list[tuple[int, float]]]:
 def hyperparameters(run_dir) -> str:
     """The `|name|value|` table the scripts log as text, as CleanRL does."""
     return events(run_dir).Tensors("hyperparameters/text_summary")[0].tensor_proto.string_val[0].decode()
+
+
+def assert_logged(run_dir, *rows: str) -> None:
+    """Each `name|value` row is in the run's logged hyperparameters table."""
+    text = hyperparameters(run_dir)
+    missing = [row for row in rows if f"|{row}|" not in text]
+    assert not missing, (str(run_dir), missing)
