@@ -14,11 +14,13 @@ from helpers import ROOT
 
 CHECK = os.path.join(ROOT, "benchmark", "gpu_check.sh")
 STEPS = ["environment", "tiny_ppo", "read_back_ppo", "tiny_p3o", "read_back_p3o", "sps_thesis", "sps_cleanrl"]
+LIMIT = 1500  # seconds the rehearsal may take
+pytestmark = pytest.mark.timeout(LIMIT + 60)  # above pyproject's 900 s per test, which would cut it first
 
 
 def gpu_check(out, **knobs):
     env = os.environ | {"REHEARSAL": "1", "PYTHON": sys.executable, "OUT": str(out)} | knobs
-    return subprocess.run(["bash", CHECK], cwd=out.parent, env=env, capture_output=True, text=True, timeout=1500)
+    return subprocess.run(["bash", CHECK], cwd=out.parent, env=env, capture_output=True, text=True, timeout=LIMIT)
 
 
 @pytest.fixture(scope="module")

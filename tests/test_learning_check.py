@@ -14,11 +14,14 @@ from helpers import ROOT, assert_logged, run_driver
 CHECK = os.path.join(ROOT, "benchmark", "learning_check.sh")
 STEPS = 4096  # one iteration of 16 envs x 256 steps
 GAMES = ("MsPacman-v5", "Breakout-v5")  # MsPacman has its own alpha (0.75), Breakout the default 0.9
+LIMIT = 2400  # seconds one call of the driver may take (about 3 minutes on two free cores)
+# the fixture makes two calls: pyproject's 900 s per test would cut them first on a loaded machine
+pytestmark = pytest.mark.timeout(2 * LIMIT + 60)
 
 
 def learning_check(cwd, out, **knobs):
     knobs = {"TOTAL_TIMESTEPS": str(STEPS), "SEEDS": "1 2", "GAMES": " ".join(GAMES), "OUT": str(out)} | knobs
-    return run_driver(CHECK, cwd, knobs, 2400)
+    return run_driver(CHECK, cwd, knobs, LIMIT)
 
 
 @pytest.fixture(scope="module")

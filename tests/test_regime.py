@@ -12,10 +12,13 @@ from helpers import ROOT, assert_logged, run_driver, scalars
 REGIME = os.path.join(ROOT, "benchmark", "regime.sh")
 STEPS = 1024  # one iteration of CleanRL's 8 envs x 128 steps
 CONFIG = "cleanrl_lr"  # CleanRL's sizes with the thesis's learning rate; both scripts run in it
+LIMIT = 1200  # seconds one call of the driver may take
+# the fixture makes two calls: pyproject's 900 s per test would cut them first on a loaded machine
+pytestmark = pytest.mark.timeout(2 * LIMIT + 60)
 
 
 def regime(cwd, out, **knobs):
-    return run_driver(REGIME, cwd, {"TOTAL_TIMESTEPS": str(STEPS), "SEEDS": "1", "OUT": str(out)} | knobs, 1200)
+    return run_driver(REGIME, cwd, {"TOTAL_TIMESTEPS": str(STEPS), "SEEDS": "1", "OUT": str(out)} | knobs, LIMIT)
 
 
 @pytest.fixture(scope="module")
