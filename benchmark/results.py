@@ -221,12 +221,18 @@ def number(x: float) -> str:
     return f"{x:.1f}" if abs(x) >= 10 else f"{x:.2f}"  # game scores to 0.1, small ones (β, early returns) to 0.01
 
 
+def mean_se_text(mean: float, se: float, n: int) -> str:
+    """`mean ± s.e.`; a single run has no standard error, so none is written (not ± 0)."""
+    return f"{number(mean)} ± {number(se)}" if n > 1 else number(mean)
+
+
 def write_table(table, out, name, tag, last) -> str:
     envs = sorted({env for env, _ in table})
     algos = sorted({algo for _, algo in table})
     statistic = f"mean of the last {last} values" if last else "mean of all values"
     lines = [
-        f"`{tag}`, per run the {statistic}; mean ± standard error (population std / √n) over n runs.",
+        f"`{tag}`, per run the {statistic}; mean ± standard error (population std / √n) over n runs (the mean"
+        " alone for one run).",
         "",
         "| game | " + " | ".join(algos) + " |",
         "|---|" + "---|" * len(algos),
@@ -236,7 +242,7 @@ def write_table(table, out, name, tag, last) -> str:
         for algo in algos:
             if (env, algo) in table:
                 mean, se, n = table[env, algo]
-                cells.append(f"{number(mean)} ± {number(se)} (n={n})")
+                cells.append(f"{mean_se_text(mean, se, n)} (n={n})")
             else:
                 cells.append("–")
         lines.append(f"| {env} | " + " | ".join(cells) + " |")
@@ -247,7 +253,7 @@ def write_table(table, out, name, tag, last) -> str:
         writer = csv.writer(f)
         writer.writerow(["game", "algorithm", "tag", "last", "n", "mean", "std_err"])
         for (env, algo), (mean, se, n) in table.items():
-            writer.writerow([env, algo, tag, last, n, mean, se])
+            writer.writerow([env, algo, tag, last, n, mean, se if n > 1 else ""])
     return markdown
 
 
@@ -281,14 +287,14 @@ def write_window_table(table, out, name, tag, window) -> str:
     labels = [f"{steps_label(k * window)}–{steps_label((k + 1) * window)}" for k in range(windows)]
     lines = [
         f"`{tag}` per window of {window:,} env steps: per run the mean of its values in the window; mean ± standard"
-        " error (population std / √n) over n runs, and in brackets the number of values (games for episodic"
-        " returns, iterations for losses and β).",
+        " error (population std / √n) over n runs (the mean alone for one run), and in brackets the number of"
+        " values (games for episodic returns, iterations for losses and β).",
         "",
         "| game | algorithm | " + " | ".join(labels) + " |",
         "|---|---|" + "---|" * windows,
     ]
     for (env, algo), cells in table.items():
-        text = [f"{number(c[0])} ± {number(c[1])} (n={c[2]}, {c[3]})" if c else "–" for c in cells]
+        text = [f"{mean_se_text(*c[:3])} (n={c[2]}, {c[3]})" if c else "–" for c in cells]
         lines.append(f"| {env} | {algo} | " + " | ".join(text + ["–"] * (windows - len(cells))) + " |")
     markdown = "\n".join(lines) + "\n"
     with open(os.path.join(out, f"{name}_windows.md"), "w") as f:
@@ -299,7 +305,8 @@ def write_window_table(table, out, name, tag, window) -> str:
         for (env, algo), cells in table.items():
             for k, c in enumerate(cells):
                 if c:
-                    writer.writerow([env, algo, tag, k * window, (k + 1) * window, c[2], c[0], c[1], c[3]])
+                    se = c[1] if c[2] > 1 else ""
+                    writer.writerow([env, algo, tag, k * window, (k + 1) * window, c[2], c[0], se, c[3]])
     return markdown
 
 
@@ -464,7 +471,9 @@ def across_games(runs, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tup
         fig.tight_layout()
         fig.savefig(figure_path, dpi=120)
         plt.close(fig)
-        lines += ["", f"Performance profile (fraction of runs above each human-normalised score): `{figure_path}`"]
+        # named relative to the table, which sits in the same folder, so the committed text holds no machine's path
+        name = os.path.basename(figure_path)
+        lines += ["", f"Performance profile (fraction of runs above each human-normalised score): `{name}`"]
     return "\n".join(lines) + "\n", sorted(set(notes))
 
 

@@ -289,3 +289,30 @@ def test_the_games_figure_and_the_performance_profile(root, tmp_path):
     assert {"games__episodic_return.png", "table_performance_profile.png"} <= names
     for name in ("games__episodic_return.png", "table_performance_profile.png"):
         assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and (tmp_path / name).stat().st_size > 10_000
+    # the committed table names the figure beside it, never this machine's folder
+    text = (tmp_path / "table_across_games.md").read_text()
+    assert "`table_performance_profile.png`" in text and str(tmp_path) not in text
+
+
+def test_a_single_run_has_no_standard_error(tmp_path):
+    """One run's spread is unknown: the tables write its mean alone (not `± 0.00`) and the CSVs leave the
+    standard error empty, while a group of three keeps its `±`."""
+    root = str(tmp_path / "runs")
+    write_run(root, "Freeway-v5", P3O, 1, [27.0] * 10, step_every=1000)
+    for seed in (1, 2, 3):
+        write_run(root, "Freeway-v5", PPO, seed, [20.0 + seed] * 10, step_every=1000)
+    out = str(tmp_path / "out")
+    results.main(results.Args(roots=(root,), out=out, figures=False, bootstrap_reps=50))
+    assert "| Freeway-v5 | 27.0 (n=1) | 22.0 ± 0.47 (n=3) |" in open(os.path.join(out, "table.md")).read()
+    with open(os.path.join(out, "table.csv")) as f:
+        rows = {r["algorithm"]: r for r in csv.DictReader(f)}
+    assert rows[P3O]["std_err"] == "" and float(rows[PPO]["std_err"]) == pytest.approx(
+        np.std([21, 22, 23]) / np.sqrt(3)
+    )
+    args = results.Args(roots=(root,), out=out, tag="charts/episodic_return", window_steps=50_000, figures=False)
+    results.main(args)
+    # seed 1 logs step / 1000 + 1 every 1000 steps: 49 games below 50k with mean 26
+    markdown = open(os.path.join(out, "table_windows.md")).read()
+    assert f"| Freeway-v5 | {P3O} | 26.0 (n=1, 49) |" in markdown and "± 0.00" not in markdown
+    with open(os.path.join(out, "table_windows.csv")) as f:
+        assert all(r["std_err"] == "" for r in csv.DictReader(f) if r["algorithm"] == P3O)
