@@ -418,8 +418,15 @@ def across_games(runs, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tup
     if not games:
         return None, sorted(set(notes))
     n = min(len(per[env][algo]) for env in games for algo in (p3o, ppo))
+    unequal = ""
     if any(len(per[env][algo]) != n for env in games for algo in (p3o, ppo)):
-        notes.append(f"runs per game differ; the first {n} of each game and algorithm are used")
+        # rliable's stratified bootstrap needs as many runs of every game; the table says what it left out
+        counts = ", ".join(f"{env} {len(per[env][p3o])}/{len(per[env][ppo])}" for env in games)
+        unequal = (
+            f" Runs per game differ ({p3o}/{ppo}: {counts}): only the first {n} of each game and algorithm,"
+            " in folder-name order, are used here."
+        )
+        notes.append(unequal.strip())
     scores = {algo: np.array([[per[env][algo][i] for env in games] for i in range(n)]) for algo in (p3o, ppo)}
     state = np.random.RandomState(seed)
     pair = f"{p3o},{ppo}"
@@ -444,7 +451,7 @@ def across_games(runs, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tup
         f"Across {len(games)} game(s) ({', '.join(games)}), {n} run(s) each, `{tag}`"
         + (f" (last {last})" if last else "")
         + f", human-normalised; {reps} stratified-bootstrap replications (rliable). The IQM is over every run of"
-        " every game; the median and mean are over the games, of each game's mean over its runs.",
+        " every game; the median and mean are over the games, of each game's mean over its runs." + unequal,
         "",
         "| algorithm | " + " | ".join(f"{name} | 95% CI" for name, _ in aggregates) + " |",
         "|---|" + "---|---|" * len(aggregates),

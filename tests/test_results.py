@@ -316,3 +316,28 @@ def test_a_single_run_has_no_standard_error(tmp_path):
     assert f"| Freeway-v5 | {P3O} | 26.0 (n=1, 49) |" in markdown and "± 0.00" not in markdown
     with open(os.path.join(out, "table_windows.csv")) as f:
         assert all(r["std_err"] == "" for r in csv.DictReader(f) if r["algorithm"] == P3O)
+
+
+def test_games_with_more_runs_than_others_say_in_the_table_which_runs_the_comparison_used(tmp_path):
+    """rliable's stratified bootstrap needs as many runs of every game: while a sweep is under way (Breakout
+    three seeds, Freeway one) the committed across-game table names the counts and that only each game's first
+    run in folder-name order (seed 1 here) is used, and its scores are those runs'."""
+    root = str(tmp_path / "runs")
+    for seed in (1, 2, 3):
+        write_run(root, "Breakout-v5", P3O, seed, [10.0 * seed] * 10, step_every=1000)
+        write_run(root, "Breakout-v5", PPO, seed, [5.0 * seed] * 10, step_every=1000)
+    write_run(root, "Freeway-v5", P3O, 1, [27.0] * 10, step_every=1000)
+    write_run(root, "Freeway-v5", PPO, 1, [21.0] * 10, step_every=1000)
+    out = str(tmp_path / "out")
+    results.main(results.Args(roots=(root,), out=out, figures=False, bootstrap_reps=50))
+    text = open(os.path.join(out, "table_across_games.md")).read()
+    assert "Across 2 game(s) (Breakout-v5, Freeway-v5), 1 run(s) each" in text
+    assert (
+        f"Runs per game differ ({P3O}/{PPO}: Breakout-v5 3/3, Freeway-v5 1/1): only the first 1 of each game and"
+        " algorithm, in folder-name order, are used here." in text
+    )
+    # one run per game: the IQM of two values is their mean; seed 1's Breakout (10 and 5), not 20 or 30
+    for algo, breakout, freeway in ((P3O, 10.0, 27.0), (PPO, 5.0, 21.0)):
+        expected = ((breakout - 1.7) / (30.5 - 1.7) + (freeway - 0.0) / (29.6 - 0.0)) / 2
+        row = re.search(rf"\| {algo} \| (-?[\d.]+) \|", text)
+        assert float(row.group(1)) == pytest.approx(expected, abs=5e-4)
