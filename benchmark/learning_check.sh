@@ -30,12 +30,12 @@ tables() {
     $PYTHON "${base}benchmark/results.py" "$out/runs" --out "$out"
     # the training return (last 100 games, and per fifth of training) and P3O's mean beta per fifth of training
     $PYTHON "${base}benchmark/results.py" "$out/runs" --out "$out" --tag charts/episodic_return --last 100 \
-        --table-name train_last100 --window-steps "$((steps / 5))" --no-figures
+        --table-name train_last100 --window-steps "$((steps / 5))" --no-figures --no-hours
     $PYTHON "${base}benchmark/results.py" "$out/runs" --out "$out" --tag p3o/beta_mean --table-name beta \
-        --window-steps "$((steps / 5))" --no-figures
+        --window-steps "$((steps / 5))" --no-figures --no-hours
     echo "tables: $out/table.md (10-game evaluation), $out/train_last100.md (last 100 training games),"
     echo "        $out/train_last100_windows.md (training return per fifth of training), $out/beta_windows.md"
-    echo "figures: $out/*.png; runs: $out/runs/"
+    echo "figures: $out/*.png; hours of training: $out/hours.md; runs: $out/runs/"
 }
 
 # this repository, by the shortest path from the current folder

@@ -17,6 +17,7 @@ import glob
 import os
 import re
 import sys
+import time
 import warnings
 from dataclasses import dataclass
 
@@ -83,6 +84,9 @@ class Args:
     """stratified-bootstrap replications for the across-game confidence intervals"""
     seed: int = 0
     """seed of the bootstrap"""
+    hours: bool = True
+    """also write OUT/hours.md and .csv: how long each training run took, from the times of its per-iteration
+    `charts/SPS` points and its event files' names"""
 
 
 @dataclass
@@ -91,6 +95,8 @@ class Run:
     env: str
     algo: str
     scalars: dict  # tag -> (steps, values) as numpy arrays
+    iteration_times: np.ndarray | None = None  # wall times (s) of the run's `charts/SPS` points, one per iteration
+    process_starts: tuple[float, ...] = ()  # the start times in its event files' names, one file per process
 
 
 def logged_identity(acc) -> dict:
@@ -143,9 +149,11 @@ def find_runs(roots, group_regex=None, above=None) -> tuple[list[Run], list[str]
             )
             acc.Reload()
             identity = logged_identity(acc)
-            scalars = {}
+            scalars, iteration_times = {}, None
             for tag in acc.Tags()["scalars"]:
                 events = acc.Scalars(tag)
+                if tag == "charts/SPS":
+                    iteration_times = np.sort(np.array([e.wall_time for e in events], dtype=np.float64))
                 steps = np.array([e.step for e in events], dtype=np.float64)
                 values = np.array([e.value for e in events], dtype=np.float64)
                 order = np.argsort(steps, kind="stable")
@@ -186,7 +194,8 @@ def find_runs(roots, group_regex=None, above=None) -> tuple[list[Run], list[str]
         if not scalars:
             problems.append(f"{folder}: no scalar events, skipped")
             continue
-        runs.append(Run(folder, env, algo, scalars))
+        starts = [re.match(r"events\.out\.tfevents\.(\d+)", f) for f in sorted(os.listdir(folder))]
+        runs.append(Run(folder, env, algo, scalars, iteration_times, tuple(float(m[1]) for m in starts if m)))
     return runs, problems
 
 
@@ -456,14 +465,17 @@ def across_games(runs, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tup
         "| algorithm | " + " | ".join(f"{name} | 95% CI" for name, _ in aggregates) + " |",
         "|---|" + "---|---|" * len(aggregates),
     ]
+    if n == 1:  # the bootstrap resamples runs within each game: with one, every replication is the same
+        lines[0] += (
+            " With one run per game there is nothing to resample, so no confidence interval is given (a bootstrap"
+            " interval would be the point itself)."
+        )
+    interval = (lambda lo, hi: f"[{lo:.3f}, {hi:.3f}]") if n > 1 else (lambda lo, hi: "–")
     for algo in (p3o, ppo):
-        cells = [f"{point[algo][k]:.3f} | [{ci[algo][0][k]:.3f}, {ci[algo][1][k]:.3f}]" for k in range(len(aggregates))]
+        cells = [f"{point[algo][k]:.3f} | {interval(ci[algo][0][k], ci[algo][1][k])}" for k in range(len(aggregates))]
         lines.append(f"| {algo} | " + " | ".join(cells) + " |")
-    lines += [
-        "",
-        f"P({p3o} > {ppo}) = {float(np.squeeze(poi[pair])):.3f}, 95% CI "
-        f"[{float(np.squeeze(poi_ci[pair][0])):.3f}, {float(np.squeeze(poi_ci[pair][1])):.3f}]",
-    ]
+    poi_interval = interval(float(np.squeeze(poi_ci[pair][0])), float(np.squeeze(poi_ci[pair][1])))
+    lines += ["", f"P({p3o} > {ppo}) = {float(np.squeeze(poi[pair])):.3f}, 95% CI {poi_interval}"]
     if figure_path:
         import matplotlib
 
@@ -549,6 +561,104 @@ def write_games_figure(runs, out, grid_points, name) -> str | None:
     return path
 
 
+def process_spans(iteration_times, process_starts) -> list[tuple[float, float]]:
+    """Per process that trained a run (the run's first start, then each resume from a checkpoint; each wrote
+    an event file named for its start time), (its start, the time of its last per-iteration point). The points
+    that TensorBoard purges on a resume (iterations after the last checkpoint, run again) end the killed
+    process's span early."""
+    t = np.sort(np.asarray(iteration_times, dtype=np.float64))
+    if not len(t):
+        return []
+    starts = sorted(s for s in process_starts if s <= t[-1]) or [float(t[0])]  # files renamed: one process
+    spans = []
+    for k, start in enumerate(starts):
+        end = starts[k + 1] if k + 1 < len(starts) else np.inf
+        mine = t[(t >= start) & (t < end)]
+        if len(mine):
+            spans.append((float(start), float(mine[-1])))
+    return spans
+
+
+def union_hours(spans) -> float:
+    """Hours covered by at least one of the spans (the machine's wall clock while any run was training)."""
+    total, reach = 0.0, -np.inf
+    for start, end in sorted(spans):
+        if end > reach:
+            total += end - max(start, reach)
+            reach = end
+    return total / 3600
+
+
+def utc(t: float) -> str:
+    return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime(t))
+
+
+def write_hours(runs, out) -> str | None:
+    """OUT/hours.md (per game and algorithm) and hours.csv (per run): how long training took. Per run the
+    elapsed time of its processes (`process_spans`), which holds every slowdown and pause, and the median time
+    of an iteration (the gaps between its per-iteration points within one process), its usual pace; the
+    evaluation games after training are in neither."""
+    rows = []
+    for run in runs:
+        if run.iteration_times is None or not len(run.iteration_times):
+            continue
+        spans = process_spans(run.iteration_times, run.process_starts)
+        t = run.iteration_times
+        gaps = np.concatenate([np.diff(t[(t >= a) & (t <= b)]) for a, b in spans])
+        pace = float(np.median(gaps)) if len(gaps) else float("nan")  # nan: one iteration per process
+        elapsed = sum(b - a for a, b in spans) / 3600
+        rows.append((run, spans, len(t), pace, elapsed))
+    if not rows:
+        return None
+    lines = [
+        "How long training took (wall clock, from the event files; the evaluation games after training are not"
+        " counted). Per run: the hours its processes ran, from each start to its last iteration, which hold every"
+        " slowdown (other work on the cores) and pause, and the median seconds between two of its iterations;"
+        " resumes: times it was stopped and resumed from a checkpoint. Means over runs, (min–max).",
+        "",
+        "| game | algorithm | runs | hours elapsed | s per iteration, median | resumes |",
+        "|---|---|---|---|---|---|",
+    ]
+    per_group = {}
+    for row in rows:
+        per_group.setdefault((row[0].env, row[0].algo), []).append(row)
+    for (env, algo), group in sorted(per_group.items()):
+        cells = []
+        for i in (4, 3):
+            x = [r[i] for r in group if not np.isnan(r[i])]
+            text = (
+                "–"
+                if not x
+                else f"{np.mean(x):.2f}"
+                if len(x) == 1
+                else f"{np.mean(x):.2f} ({min(x):.2f}–{max(x):.2f})"
+            )
+            cells.append(text)
+        resumes = sum(len(r[1]) - 1 for r in group)
+        lines.append(f"| {env} | {algo} | {len(group)} | " + " | ".join(cells) + f" | {resumes} |")
+    all_spans = [span for r in rows for span in r[1]]
+    lines += [
+        "",
+        f"All {len(rows)} runs: {sum(r[4] for r in rows):.1f} hours elapsed summed over runs (core-hours for runs"
+        f" of one core each); at least one of them was training during {union_hours(all_spans):.1f} hours of wall"
+        f" clock between {utc(min(a for a, _ in all_spans))} and {utc(max(b for _, b in all_spans))}.",
+    ]
+    markdown = "\n".join(lines) + "\n"
+    with open(os.path.join(out, "hours.md"), "w") as f:
+        f.write(markdown)
+    with open(os.path.join(out, "hours.csv"), "w", newline="") as f:
+        writer = csv.writer(f)
+        header = ["run", "game", "algorithm", "iterations", "hours_elapsed", "seconds_per_iteration", "resumes"]
+        writer.writerow(header + ["first_start_utc", "last_iteration_utc"])
+        for run, spans, iterations, pace, elapsed in rows:
+            name = os.path.basename(run.path)
+            writer.writerow(
+                [name, run.env, run.algo, iterations, f"{elapsed:.4f}", "" if np.isnan(pace) else f"{pace:.2f}"]
+                + [len(spans) - 1, utc(spans[0][0]), utc(spans[-1][1])]
+            )
+    return markdown
+
+
 def main(args: Args) -> dict:
     if args.last < 0 or args.window_steps < 0 or args.grid_points < 2 or args.bootstrap_reps < 1:
         sys.exit(
@@ -598,6 +708,10 @@ def main(args: Args) -> dict:
             f.write(tests)
         print(tests)
     result["per_game_tests"] = tests
+    result["hours"] = write_hours(runs, args.out) if args.hours else None
+    if result["hours"]:
+        print(result["hours"])
+        print(f"wrote {os.path.join(args.out, 'hours')}.md and .csv")
     if args.figures:
         result["figures"] = write_figures(runs, args.out, args.grid_points)
         games = write_games_figure(runs, args.out, args.grid_points, "games__episodic_return")

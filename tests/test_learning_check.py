@@ -94,6 +94,10 @@ def test_seed_1_of_every_game_comes_first_and_the_tables_after_each_pair(checked
     for game in GAMES:
         assert (out / f"{game}__beta_mean.png").is_file()
     assert (out / "train_last100.md").is_file()
+    with open(out / "hours.csv") as f:  # one iteration per run: its elapsed time, no pace, no resume
+        hours = {r["run"]: r for r in csv.DictReader(f)}
+    assert set(hours) == {f"{g}__{a}_atari_envpool__{s}" for g in GAMES for a in ("ppo", "p3o") for s in (1, 2)}
+    assert all((r["iterations"], r["resumes"]) == ("1", "0") and float(r["hours_elapsed"]) > 0 for r in hours.values())
 
 
 def test_a_second_call_skips_finished_pairs_and_remakes_the_tables(checked):
