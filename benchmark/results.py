@@ -607,7 +607,9 @@ def write_hours(runs, out) -> str | None:
         gaps = np.concatenate([np.diff(t[(t >= a) & (t <= b)]) for a, b in spans])
         pace = float(np.median(gaps)) if len(gaps) else float("nan")  # nan: one iteration per process
         elapsed = sum(b - a for a, b in spans) / 3600
-        rows.append((run, spans, len(t), pace, elapsed))
+        # every process after the first is a resume, also one killed in its start-up (no iteration, no span)
+        resumes = max(sum(1 for start in run.process_starts if start <= t[-1]) - 1, 0)
+        rows.append((run, spans, len(t), pace, elapsed, resumes))
     if not rows:
         return None
     lines = [
@@ -634,7 +636,7 @@ def write_hours(runs, out) -> str | None:
                 else f"{np.mean(x):.2f} ({min(x):.2f}–{max(x):.2f})"
             )
             cells.append(text)
-        resumes = sum(len(r[1]) - 1 for r in group)
+        resumes = sum(r[5] for r in group)
         lines.append(f"| {env} | {algo} | {len(group)} | " + " | ".join(cells) + f" | {resumes} |")
     all_spans = [span for r in rows for span in r[1]]
     lines += [
@@ -650,11 +652,11 @@ def write_hours(runs, out) -> str | None:
         writer = csv.writer(f)
         header = ["run", "game", "algorithm", "iterations", "hours_elapsed", "seconds_per_iteration", "resumes"]
         writer.writerow(header + ["first_start_utc", "last_iteration_utc"])
-        for run, spans, iterations, pace, elapsed in rows:
+        for run, spans, iterations, pace, elapsed, resumes in rows:
             name = os.path.basename(run.path)
             writer.writerow(
                 [name, run.env, run.algo, iterations, f"{elapsed:.4f}", "" if np.isnan(pace) else f"{pace:.2f}"]
-                + [len(spans) - 1, utc(spans[0][0]), utc(spans[-1][1])]
+                + [resumes, utc(spans[0][0]), utc(spans[-1][1])]
             )
     return markdown
 

@@ -362,14 +362,16 @@ def write_process(folder, start, iterations, every, purge_step=None):
 
 
 def test_hours_are_the_elapsed_time_of_each_process_and_the_union_over_runs(tmp_path):
-    """hours.md: a run killed after iteration 10 (checkpoint after 8) and resumed ten hours later counts the
-    time of its two processes, without the pause and without the purged iterations 9-10 of the first; the
+    """hours.md: a run killed after iteration 10 (checkpoint after 8), resumed, killed again in its start-up
+    and resumed ten hours later counts the time of its two training processes, without the pause and without
+    the purged iterations 9-10 of the first, and two resumes; the
     machine's wall clock is the union over runs; a run with no training points (the random policy) is not in
     it."""
     t0 = 1_700_000_000  # 2023-11-14 22:13:20 UTC
     root = str(tmp_path / "runs")
     p3o = os.path.join(root, f"Breakout-v5__{P3O}__1")
     write_process(p3o, t0, range(1, 11), every=300)
+    write_process(p3o, t0 + 30_000, [], every=300, purge_step=8 * 4096 + 1)  # killed in its start-up
     write_process(p3o, t0 + 36_000, range(9, 21), every=300, purge_step=8 * 4096 + 1)
     write_process(os.path.join(root, f"Breakout-v5__{PPO}__1"), t0, range(1, 21), every=200)
     write_run(root, "Breakout-v5", "random", 1, [1.0] * 10, step_every=50_000)
@@ -379,7 +381,7 @@ def test_hours_are_the_elapsed_time_of_each_process_and_the_union_over_runs(tmp_
         rows = {r["algorithm"]: r for r in csv.DictReader(f)}
     assert set(rows) == {P3O, PPO}
     # P3O: (100 + 8 × 300) + (100 + 12 × 300) = 6,200 s; PPO: 100 + 20 × 200 = 4,100 s
-    assert (rows[P3O]["iterations"], rows[P3O]["resumes"], rows[P3O]["seconds_per_iteration"]) == ("20", "1", "300.00")
+    assert (rows[P3O]["iterations"], rows[P3O]["resumes"], rows[P3O]["seconds_per_iteration"]) == ("20", "2", "300.00")
     assert float(rows[P3O]["hours_elapsed"]) == pytest.approx(6200 / 3600, abs=1e-4)
     assert float(rows[PPO]["hours_elapsed"]) == pytest.approx(4100 / 3600, abs=1e-4)
     assert (rows[PPO]["first_start_utc"], rows[P3O]["last_iteration_utc"]) == (
@@ -387,7 +389,7 @@ def test_hours_are_the_elapsed_time_of_each_process_and_the_union_over_runs(tmp_
         "2023-11-15 09:15 UTC",  # t0 + 36,000 + 3,700
     )
     markdown = open(os.path.join(out, "hours.md")).read()
-    assert f"| Breakout-v5 | {P3O} | 1 | 1.72 | 300.00 | 1 |" in markdown
+    assert f"| Breakout-v5 | {P3O} | 1 | 1.72 | 300.00 | 2 |" in markdown
     assert f"| Breakout-v5 | {PPO} | 1 | 1.14 | 200.00 | 0 |" in markdown
     # union: [t0, t0 + 4,100] and [t0 + 36,000, t0 + 39,700] = 7,800 s
     assert "All 2 runs: 2.9 hours elapsed summed over runs" in markdown
