@@ -46,6 +46,25 @@ def load_script(algorithm: str):
     return importlib.import_module(f"{algorithm}_atari_envpool")
 
 
+class UniformPolicy:
+    """The random policy, with the `hidden` and `actor` that a training script's `evaluate` calls: a logit of
+    0 for every action, so that the same evaluation samples each uniformly, without running the network."""
+
+    def __init__(self, num_actions: int):
+        self.num_actions = num_actions
+
+    def hidden(self, x):
+        return x
+
+    def actor(self, x):
+        import torch
+
+        return torch.zeros(x.shape[0], self.num_actions, device=x.device)
+
+    def to(self, device):
+        return self
+
+
 def load_model(path: str, script) -> dict:
     """Read a model file or checkpoint, refusing with one clear sentence anything the scripts did not write."""
     import torch
@@ -87,13 +106,10 @@ def main(args: Args) -> dict:
     env_id = args.env_id or saved["args"]["env_id"]
     script.check_args(script.Args(env_id=env_id))  # the scripts' refusal of a game that is not envpool Atari
     num_actions = int(script.envpool.make_spec(env_id).action_space.n)
-    agent = script.Agent(num_actions)
     if saved is None:
-        # the random policy: the same network and evaluation with a zeroed policy head, so every action
-        # has logit 0 and is sampled uniformly
-        torch.nn.init.zeros_(agent.actor.weight)
-        torch.nn.init.zeros_(agent.actor.bias)
+        agent = UniformPolicy(num_actions)
     else:
+        agent = script.Agent(num_actions)
         trained_on, weights = saved["args"]["env_id"], saved["model_state_dict"]
         if weights["actor.weight"].shape[0] != num_actions:
             sys.exit(
@@ -110,6 +126,9 @@ def main(args: Args) -> dict:
     parent, name = os.path.split(os.path.normpath(args.run_dir)) if args.run_dir else ("", "")
     partial = os.path.join(parent, f".{name}.partial-{os.getpid()}")
     videos = os.path.join(partial, "videos") if args.video else None
+    # the sampled actions come from torch's generator, which torch otherwise seeds at random in each process:
+    # seeded, the same --seed plays the same games
+    torch.manual_seed(args.seed)
     report = script.evaluate(agent, env_id, args.episodes, args.seed, args.greedy, device, videos)
     algorithm = "random" if saved is None else saved["algorithm"]
     report |= {"algorithm": algorithm, "model_path": args.model_path, "device": device_name}

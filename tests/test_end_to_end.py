@@ -262,6 +262,36 @@ def test_evaluate_script_plays_a_saved_model(runs, algo, tmp_path):
     assert evaluate_cli("--model-path", checkpoint, "--episodes", "1", "--greedy").returncode == 0
 
 
+def test_evaluate_script_plays_the_same_games_for_the_same_seed(runs):
+    # the actions are sampled: the same --seed must give the same games in another process (torch seeds its
+    # generator at random in each), for the random policy and for a saved model alike
+    _, run_dirs = runs["ppo", "Breakout-v5"]
+    model = os.path.join(run_dirs[0], "ppo_atari_envpool.cleanrl_model")
+    for flags in (["--random", "--env-id", "Breakout-v5"], ["--model-path", model]):
+        played = [evaluate_cli(*flags, "--episodes", "4", "--seed", str(seed)) for seed in (7, 7, 8)]
+        assert all(proc.returncode == 0 for proc in played), played[0].stderr[-3000:]
+        games = [[line for line in proc.stdout.splitlines() if line.startswith("game ")] for proc in played]
+        assert len(games[0]) == 4 and games[0] == games[1], flags
+        assert games[2] != games[0], flags  # and another seed plays other games
+
+
+def test_the_random_policy_samples_as_the_network_with_a_zeroed_policy_head():
+    # evaluate.py's stand-in gives every action the logit 0 without running the network: the same games, step
+    # for step, as the network whose policy head is zero, from the same generator state
+    from benchmark import evaluate
+
+    module = SCRIPTS["ppo"]
+    agent = module.Agent(6)  # Qbert's 6 actions
+    torch.nn.init.zeros_(agent.actor.weight)
+    torch.nn.init.zeros_(agent.actor.bias)
+    reports = []
+    for policy in (agent, evaluate.UniformPolicy(6)):
+        torch.manual_seed(3)
+        reports.append(module.evaluate(policy, "Qbert-v5", 3, 1_000_001, False, torch.device("cpu")))
+    assert reports[0] == reports[1]
+    assert len(set(reports[0]["lengths"])) > 1  # the games differ, so the comparison can fail
+
+
 def test_evaluate_script_random_baseline_and_refusals(runs, tmp_path):
     from benchmark import evaluate
 
