@@ -2,6 +2,7 @@
 their TensorBoard event files."""
 
 import glob
+import json
 import math
 import os
 import shutil
@@ -273,6 +274,20 @@ def test_evaluate_script_plays_the_same_games_for_the_same_seed(runs):
         games = [[line for line in proc.stdout.splitlines() if line.startswith("game ")] for proc in played]
         assert len(games[0]) == 4 and games[0] == games[1], flags
         assert games[2] != games[0], flags  # and another seed plays other games
+
+
+def test_a_committed_random_baseline_replays_game_for_game():
+    # the learning check's random policy on Breakout seed 1 (benchmark/results/learning_check): evaluate.py with
+    # the same seed plays the same ten games, so every committed baseline can be checked by anyone
+    run = os.path.join(ROOT, "benchmark", "results", "learning_check", "runs", "Breakout-v5__random__1")
+    committed = json.load(open(os.path.join(run, "eval.json")))
+    proc = evaluate_cli("--random", "--env-id", "Breakout-v5", "--episodes", "10", "--seed", str(committed["seeds"][0]))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    games = [line for line in proc.stdout.splitlines() if line.startswith("game ")]
+    played = zip(committed["seeds"], committed["returns"], committed["lengths"], strict=True)
+    assert games == [
+        f"game {i} (seed {seed}): return {ret:.1f}, {length} steps" for i, (seed, ret, length) in enumerate(played)
+    ]
 
 
 def test_the_random_policy_samples_as_the_network_with_a_zeroed_policy_head():
