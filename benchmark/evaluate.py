@@ -27,7 +27,8 @@ class Args:
     episodes: int = 10
     """how many full games to play"""
     seed: int = 1
-    """game i is played in its own environment seeded seed + i"""
+    """game i is played in its own environment seeded seed + i; the actions are sampled from torch's generator
+    seeded with it, so the same seed plays the same games"""
     greedy: bool = False
     """play the most probable action instead of sampling from the policy"""
     random: bool = False
