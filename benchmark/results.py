@@ -438,6 +438,10 @@ def across_games(runs, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tup
         notes.append(unequal.strip())
     scores = {algo: np.array([[per[env][algo][i] for env in games] for i in range(n)]) for algo in (p3o, ppo)}
     state = np.random.RandomState(seed)
+    # rliable's StratifiedBootstrap (the IQM, median and mean, and the performance profile) draws its resamples
+    # from numpy's global generator, not from the random_state it is given (its update_indices): seeded too, the
+    # same --seed gives the same intervals and figure
+    np.random.seed(seed)
     pair = f"{p3o},{ppo}"
     aggregates = [
         ("IQM", metrics.aggregate_iqm),

@@ -294,6 +294,20 @@ def test_the_games_figure_and_the_performance_profile(root, tmp_path):
     assert "`table_performance_profile.png`" in text and str(tmp_path) not in text
 
 
+def test_the_bootstrap_intervals_and_the_performance_profile_are_the_same_for_the_same_seed(root, tmp_path):
+    # the across-game CIs and the profile's bands are bootstrapped: the same --seed gives the same table and
+    # figure (rliable resamples from numpy's global generator, whatever random_state it is given), another
+    # seed other ones
+    made = []
+    for seed, out in [(1, "a"), (1, "b"), (2, "c")]:
+        args = results.Args(roots=(root,), out=str(tmp_path / out), bootstrap_reps=200, seed=seed, grid_points=2)
+        results.main(args)
+        table = (tmp_path / out / "table_across_games.md").read_text()
+        made.append((table, (tmp_path / out / "table_performance_profile.png").read_bytes()))
+    assert made[0] == made[1]
+    assert made[2][0] != made[0][0] and made[2][1] != made[0][1]
+
+
 def test_a_single_run_has_no_standard_error(tmp_path):
     """One run's spread is unknown: the tables write its mean alone (not `± 0.00`) and the CSVs leave the
     standard error empty, while a group of three keeps its `±`."""
