@@ -58,9 +58,8 @@ class UniformPolicy:
         return x
 
     def actor(self, x):
-        import torch
-
-        return torch.zeros(x.shape[0], self.num_actions, device=x.device)
+        # x is the uint8 frame batch (hidden passes it through): float logits of its batch size, on its device
+        return x.new_zeros((x.shape[0], self.num_actions)).float()
 
     def to(self, device):
         return self

@@ -597,6 +597,13 @@ def utc(t: float) -> str:
     return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime(t))
 
 
+def mean_and_range(x) -> str:
+    """A cell of hours.md: the mean of x with its (min–max) where x holds more than one value."""
+    if not x:
+        return "–"
+    return f"{np.mean(x):.2f}" if len(x) == 1 else f"{np.mean(x):.2f} ({min(x):.2f}–{max(x):.2f})"
+
+
 def write_hours(runs, out) -> str | None:
     """OUT/hours.md (per game and algorithm) and hours.csv (per run): how long training took. Per run the
     elapsed time of its processes (`process_spans`), which holds every slowdown and pause, and the median time
@@ -629,17 +636,7 @@ def write_hours(runs, out) -> str | None:
     for row in rows:
         per_group.setdefault((row[0].env, row[0].algo), []).append(row)
     for (env, algo), group in sorted(per_group.items()):
-        cells = []
-        for i in (4, 3):
-            x = [r[i] for r in group if not np.isnan(r[i])]
-            text = (
-                "–"
-                if not x
-                else f"{np.mean(x):.2f}"
-                if len(x) == 1
-                else f"{np.mean(x):.2f} ({min(x):.2f}–{max(x):.2f})"
-            )
-            cells.append(text)
+        cells = [mean_and_range([r[i] for r in group if not np.isnan(r[i])]) for i in (4, 3)]
         resumes = sum(r[5] for r in group)
         lines.append(f"| {env} | {algo} | {len(group)} | " + " | ".join(cells) + f" | {resumes} |")
     all_spans = [span for r in rows for span in r[1]]
