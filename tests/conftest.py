@@ -13,3 +13,24 @@ from helpers import ROOT  # noqa: E402  (after the environment above)
 
 if ROOT not in sys.path:
     sys.path.insert(0, ROOT)
+
+# The test files that take longest, longest first (a fresh clone's `bash .ci/run` on 2 free cores, 2026-12-03:
+# test_resume.py about 10 minutes, the next three 5-8, the rest 3 or less). pytest-xdist hands whole files to the
+# workers in collection order (`--dist loadfile --no-loadscope-reorder`, pyproject.toml), each worker taking the next
+# file as it finishes one: long files first, so that the workers end together and none waits alone at the end
+# for a long file started last (by its default order, the most tests first, one worker finished 5 minutes early).
+SLOWEST_FIRST = (
+    "test_resume.py",
+    "test_learning_check.py",
+    "test_end_to_end.py",
+    "test_slurm.py",
+    "test_sweep.py",
+    "test_gpu_check.py",
+    "test_video_wandb.py",
+)
+
+
+def pytest_collection_modifyitems(items):
+    """Collect the slow files first, each file's tests in their order (a stable sort); the rest keep theirs."""
+    rank = {name: i for i, name in enumerate(SLOWEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
