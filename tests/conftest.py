@@ -14,7 +14,7 @@ from helpers import ROOT  # noqa: E402  (after the environment above)
 if ROOT not in sys.path:
     sys.path.insert(0, ROOT)
 
-# The test files that take longest, longest first (a fresh clone's `bash .ci/run` on 2 free cores, 2026-12-03:
+# The test files that take longest, longest first (the suite run behind stop 40's CI on this 2-core machine, 2026-12-03:
 # test_resume.py about 10 minutes, the next three 5-8, the rest 3 or less). pytest-xdist hands whole files to the
 # workers in collection order (`--dist loadfile --no-loadscope-reorder`, pyproject.toml), each worker taking the next
 # file as it finishes one: long files first, so that the workers end together and none waits alone at the end
