@@ -15,15 +15,16 @@ if ROOT not in sys.path:
     sys.path.insert(0, ROOT)
 
 # The test files that take longest, longest first (the suite run behind stop 40's CI on this 2-core machine, 2026-12-03:
-# test_resume.py about 10 minutes, the next three 5-8, the rest 3 or less). pytest-xdist hands whole files to the
+# test_resume.py about 10 minutes, the next three 5-8, the rest 3 or less; test_learning_check.py has since trained
+# two pairs instead of four, about half its time, and moved down). pytest-xdist hands whole files to the
 # workers in collection order (`--dist loadfile --no-loadscope-reorder`, pyproject.toml), each worker taking the next
 # file as it finishes one: long files first, so that the workers end together and none waits alone at the end
 # for a long file started last (by its default order, the most tests first, one worker finished 5 minutes early).
 SLOWEST_FIRST = (
     "test_resume.py",
-    "test_learning_check.py",
     "test_end_to_end.py",
     "test_slurm.py",
+    "test_learning_check.py",
     "test_sweep.py",
     "test_gpu_check.py",
     "test_video_wandb.py",
