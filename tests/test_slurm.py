@@ -53,6 +53,9 @@ TaskPlugin=task/none
 SelectType=select/cons_tres
 SelectTypeParameters=CR_CPU
 SchedulerType=sched/backfill
+# A requeued task may start cred_expire + 1 s after its requeue, then waits for a scheduling pass (every 60 s,
+# backfill every 30 s, by default): frequent passes keep the preemption test from waiting on them.
+SchedulerParameters=sched_interval=2,bf_interval=2
 JobCompType=jobcomp/none
 AccountingStorageType=accounting_storage/none
 MpiDefault=none
@@ -197,7 +200,7 @@ def test_the_array_job_runs_every_run_and_a_second_sweep_submits_nothing(slurm, 
 
 
 def test_preempted_and_signalled_tasks_checkpoint_requeue_and_resume(slurm, tmp_path):
-    iterations = 40
+    iterations = 16
     knobs = {"GAMES": "Breakout-v5", "SEEDS": "1", "TOTAL_TIMESTEPS": str(128 * iterations), "WORKERS": "2"}
     knobs |= {"GROUP": "long", "EXTRA_ARGS": f"{TINY} --eval-episodes 0"}
     job = submitted(sweep(slurm, tmp_path, **knobs))
@@ -208,15 +211,17 @@ def test_preempted_and_signalled_tasks_checkpoint_requeue_and_resume(slurm, tmp_
         path = logs / f"slurm-{job}_{task}.log"
         return path.exists() and text in path.read_text()
 
-    start = time.time()
-    while not (printed(0, "iteration 3/") and printed(1, "iteration 3/")):
-        assert time.time() - start < 300, "the tasks did not start"
-        time.sleep(0.5)
     # task 0 (PPO) is preempted: Slurm signals it itself and requeues it. Task 1 (P3O) gets what
     # `--signal=B:TERM@...` sends before a time limit: SIGTERM to its batch shell, which passes it on to the
-    # training script and requeues the task itself.
-    subprocess.run(["scontrol", "requeue", f"{job}_0"], env=env, check=True)
-    subprocess.run(["scancel", "--signal=TERM", "--batch", f"{job}_1"], env=env, check=True)
+    # training script and requeues the task itself. Each as soon as it has printed its third iteration, so
+    # neither can finish first however far apart the two start.
+    stop = {0: ["scontrol", "requeue", f"{job}_0"], 1: ["scancel", "--signal=TERM", "--batch", f"{job}_1"]}
+    start = time.time()
+    while stop:
+        assert time.time() - start < 300, f"tasks {sorted(stop)} did not start"
+        for task in [task for task in stop if printed(task, "iteration 3/")]:
+            subprocess.run(stop.pop(task), env=env, check=True)
+        time.sleep(0.1)
     states = wait_for(
         slurm, job, lambda s: all(state == "COMPLETED" and restarts >= 1 for state, restarts in s.values())
     )
