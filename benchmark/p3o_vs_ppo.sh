@@ -16,6 +16,8 @@
 #   TOTAL_TIMESTEPS  steps per run (default: 20000000)
 #   EXTRA_ARGS       more flags for both scripts, e.g. "--num-envs 64"
 #   WORKERS          runs at a time: local processes, or the array's % limit under Slurm (default: 1)
+#   OMP_NUM_THREADS  torch's threads per run (default: the cores / WORKERS locally when WORKERS > 1, the task's
+#                    --cpus-per-task under Slurm): runs that each take every core slow one another down
 #   GROUP            folder under runs/ (default: p3o_vs_ppo)
 #   PYTHON           how to start python (default: "uv run python", with --project when run elsewhere)
 #   SBATCH_ARGS      extra sbatch options (default: "--gres=gpu:1 --cpus-per-task=16 --time=24:00:00")
@@ -141,6 +143,8 @@ commands=(
 $(printf '    %q\n' "${commands[@]}")
 )
 echo "task \$SLURM_ARRAY_TASK_ID (restart \${SLURM_RESTART_COUNT:-0}) on \$(hostname): \${commands[\$SLURM_ARRAY_TASK_ID]}"
+# torch's threads: the task's CPUs, not the node's (tasks sharing a node would otherwise slow one another down)
+export OMP_NUM_THREADS=\${OMP_NUM_THREADS:-\${SLURM_CPUS_PER_TASK:-1}}
 # SIGTERM (preemption, or SIGNAL_SECONDS before the time limit) goes to the training script, which writes
 # a checkpoint and exits; the task then requeues itself and continues with --auto-resume.
 bash -c "exec \${commands[\$SLURM_ARRAY_TASK_ID]}" &
@@ -168,7 +172,13 @@ if [ "${SLURM:-0}" = 1 ]; then
     exit 0
 fi
 
-# local mode: at most WORKERS runs at a time, each appending to its own log
+# local mode: at most WORKERS runs at a time, each appending to its own log. With torch's default of a thread per
+# core, runs side by side slow one another down (two 4-environment runs on 2 cores: 55 steps/s each, 300 with one
+# thread each; benchmark/README.md), so each gets its share of the cores unless OMP_NUM_THREADS says otherwise.
+if [ "$WORKERS" -gt 1 ] && [ -z "${OMP_NUM_THREADS:-}" ]; then
+    threads=$(($(nproc) / WORKERS))
+    export OMP_NUM_THREADS=$((threads > 0 ? threads : 1))
+fi
 failed=0
 for i in "${!commands[@]}"; do
     log="$logs/$(basename "${names[$i]}").log"

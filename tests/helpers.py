@@ -16,6 +16,15 @@ def run_driver(script, cwd, knobs, timeout) -> subprocess.CompletedProcess:
     return subprocess.run(["bash", script], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
 
 
+def python_printing_threads(folder) -> str:
+    """A PYTHON for the sweep that first prints, to stderr (a run's log), the OMP_NUM_THREADS it starts with."""
+    path = os.path.join(folder, "python-printing-threads")
+    with open(path, "w") as f:
+        f.write(f'#!/bin/sh\necho "OMP_NUM_THREADS=${{OMP_NUM_THREADS-unset}}" >&2\nexec {sys.executable} "$@"\n')
+    os.chmod(path, 0o755)
+    return path
+
+
 def events(run_dir) -> EventAccumulator:
     """Every scalar, histogram and text a run folder holds, as TensorBoard shows it (purged points left out)."""
     acc = EventAccumulator(str(run_dir), size_guidance={"scalars": 0, "histograms": 0, "tensors": 0})

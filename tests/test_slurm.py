@@ -13,13 +13,12 @@ import re
 import shutil
 import socket
 import subprocess
-import sys
 import tempfile
 import time
 
 import pytest
 
-from helpers import ROOT, scalars
+from helpers import ROOT, python_printing_threads, scalars
 
 pytestmark = pytest.mark.slurm
 SWEEP = os.path.join(ROOT, "benchmark", "p3o_vs_ppo.sh")
@@ -130,8 +129,9 @@ def daemon_logs(base):
 
 
 def sweep(slurm, cwd, **knobs):
-    env = {k: v for k, v in os.environ.items() if k not in ("GAMES", "SEEDS", "EXTRA_ARGS", "DRY_RUN")}
-    env |= {"SLURM": "1", "SLURM_CONF": slurm["SLURM_CONF"], "PYTHON": sys.executable, **knobs}
+    drop = ("GAMES", "SEEDS", "EXTRA_ARGS", "DRY_RUN", "OMP_NUM_THREADS")
+    env = {k: v for k, v in os.environ.items() if k not in drop}
+    env |= {"SLURM": "1", "SLURM_CONF": slurm["SLURM_CONF"], "PYTHON": python_printing_threads(cwd), **knobs}
     env["SBATCH_ARGS"] = "--cpus-per-task=1 --time=30"  # no GPU here
     return subprocess.run(["bash", SWEEP], env=env, cwd=cwd, capture_output=True, text=True, timeout=300)
 
@@ -191,6 +191,7 @@ def test_the_array_job_runs_every_run_and_a_second_sweep_submits_nothing(slurm, 
         log = (logs / f"slurm-{job}_{i}.log").read_text()
         assert f"task {i} (restart 0) on " in log and log.splitlines()[0].endswith(command)
         assert "iteration 2/2 global_step=256" in log and "eval: 1 games" in log
+        assert "OMP_NUM_THREADS=1\n" in log  # the task's one CPU (--cpus-per-task=1), not the node's
         name = re.search(r"--run-name (\S+)", command).group(1)
         assert iteration_steps(tmp_path / "runs" / name) == [128, 256]
         assert (tmp_path / "runs" / name / "eval.json").is_file()

@@ -10,7 +10,7 @@ import sys
 import pytest
 import torch
 
-from helpers import ROOT
+from helpers import ROOT, python_printing_threads
 
 SWEEP = os.path.join(ROOT, "benchmark", "p3o_vs_ppo.sh")
 THESIS_GAMES = ["Breakout-v5", "Freeway-v5", "Seaquest-v5", "Riverraid-v5", "Qbert-v5", "MsPacman-v5"]
@@ -18,6 +18,7 @@ THESIS_GAMES = ["Breakout-v5", "Freeway-v5", "Seaquest-v5", "Riverraid-v5", "Qbe
 
 def sweep(env, cwd):
     knobs = ("GAMES", "SEEDS", "EXTRA_ARGS", "SLURM", "DRY_RUN", "ALGOS", "WORKERS", "GROUP", "TOTAL_TIMESTEPS")
+    knobs += ("OMP_NUM_THREADS",)
     keep = {k: v for k, v in os.environ.items() if k not in knobs}
     # the sweep checks every command with the training scripts' own parser, in this python
     keep["PYTHON"] = sys.executable
@@ -71,7 +72,7 @@ def test_local_mode_resumes_unfinished_runs_runs_workers_at_a_time_and_skips_fin
         "EXTRA_ARGS": tiny,
         "WORKERS": "2",
         "GROUP": "tiny",
-        "PYTHON": sys.executable,
+        "PYTHON": python_printing_threads(tmp_path),
     }
     # an unfinished run: one of the grid's own commands, stopped by SIGTERM after its first iteration
     commands = sweep(env | {"DRY_RUN": "1"}, tmp_path).stdout.splitlines()
@@ -95,6 +96,8 @@ def test_local_mode_resumes_unfinished_runs_runs_workers_at_a_time_and_skips_fin
             assert (run_dir / "eval.json").is_file()
             log = (tmp_path / "runs" / "tiny" / "logs" / f"{name}.log").read_text()
             assert "iteration 4/4 global_step=512" in log
+            # two runs at a time: each with half the cores' threads, not torch's default of all of them
+            assert f"OMP_NUM_THREADS={max(1, len(os.sched_getaffinity(0)) // 2)}\n" in log, log
             resumed = f"resuming runs/tiny/{name} after iteration {stopped_at} " in log
             assert resumed == (name == "Qbert-v5__p3o_atari_envpool__1"), log
     # WORKERS=2: never more than two runs at once, and two at once at some point
