@@ -294,6 +294,31 @@ def test_the_games_figure_and_the_performance_profile(root, tmp_path):
     assert "`table_performance_profile.png`" in text and str(tmp_path) not in text
 
 
+def test_the_performance_profile_legend_names_each_algorithms_own_line(root, tmp_path, monkeypatch):
+    import matplotlib.figure
+    from matplotlib.colors import to_hex
+    from matplotlib.lines import Line2D
+
+    legends, save = [], matplotlib.figure.Figure.savefig
+
+    def read_legend(fig, path, *args, **kwargs):
+        if str(path).endswith("_performance_profile.png"):
+            ax = fig.axes[0]
+            lines = {line.get_label(): to_hex(line.get_color()) for line in ax.get_lines()}
+            legend = ax.get_legend()
+            entries = zip(legend.get_texts(), legend.legend_handles, strict=True)
+            legends.append((lines, [(text.get_text(), handle) for text, handle in entries]))
+        return save(fig, path, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", read_legend)
+    results.main(results.Args(roots=(root,), out=str(tmp_path), bootstrap_reps=200))
+    [(lines, entries)] = legends
+    assert [name for name, _ in entries] == ["p3o_atari_envpool", "ppo_atari_envpool"]
+    for name, handle in entries:  # each name beside its own algorithm's line, in that line's colour
+        assert isinstance(handle, Line2D) and to_hex(handle.get_color()) == lines[name]
+    assert lines["p3o_atari_envpool"] != lines["ppo_atari_envpool"]
+
+
 def test_the_bootstrap_intervals_and_the_performance_profile_are_the_same_for_the_same_seed(root, tmp_path):
     # the across-game CIs and the profile's bands are bootstrapped: the same --seed gives the same table and
     # figure (rliable resamples from numpy's global generator, whatever random_state it is given), another
