@@ -283,25 +283,14 @@ def test_across_games_median_mean_and_the_per_game_tests(root, tmp_path):
     assert "| Qbert-v5 | 3 vs 3 | -48.5 | " in tests  # (4.5 + 100 + 200) / 3 - 150
 
 
-def test_the_games_figure_and_the_performance_profile(root, tmp_path):
-    result = results.main(results.Args(roots=(root,), out=str(tmp_path), bootstrap_reps=200))
-    names = {os.path.basename(p) for p in result["figures"]}
-    assert {"games__episodic_return.png", "table_performance_profile.png"} <= names
-    for name in ("games__episodic_return.png", "table_performance_profile.png"):
-        assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and (tmp_path / name).stat().st_size > 10_000
-    # the committed table names the figure beside it, never this machine's folder
-    text = (tmp_path / "table_across_games.md").read_text()
-    assert "`table_performance_profile.png`" in text and str(tmp_path) not in text
-
-
-def test_the_performance_profile_legend_names_each_algorithms_own_line(root, tmp_path, monkeypatch):
+def test_the_games_figure_and_the_performance_profile(root, tmp_path, monkeypatch):
     import matplotlib.figure
     from matplotlib.colors import to_hex
     from matplotlib.lines import Line2D
 
     legends, save = [], matplotlib.figure.Figure.savefig
 
-    def read_legend(fig, path, *args, **kwargs):
+    def read_legend(fig, path, *args, **kwargs):  # the profile's legend, read as it is saved
         if str(path).endswith("_performance_profile.png"):
             ax = fig.axes[0]
             lines = {line.get_label(): to_hex(line.get_color()) for line in ax.get_lines()}
@@ -311,10 +300,18 @@ def test_the_performance_profile_legend_names_each_algorithms_own_line(root, tmp
         return save(fig, path, *args, **kwargs)
 
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", read_legend)
-    results.main(results.Args(roots=(root,), out=str(tmp_path), bootstrap_reps=200))
+    result = results.main(results.Args(roots=(root,), out=str(tmp_path), bootstrap_reps=200))
+    names = {os.path.basename(p) for p in result["figures"]}
+    assert {"games__episodic_return.png", "table_performance_profile.png"} <= names
+    for name in ("games__episodic_return.png", "table_performance_profile.png"):
+        assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and (tmp_path / name).stat().st_size > 10_000
+    # the committed table names the figure beside it, never this machine's folder
+    text = (tmp_path / "table_across_games.md").read_text()
+    assert "`table_performance_profile.png`" in text and str(tmp_path) not in text
+    # the legend names each algorithm beside its own line, in that line's colour (not a line and its band)
     [(lines, entries)] = legends
     assert [name for name, _ in entries] == ["p3o_atari_envpool", "ppo_atari_envpool"]
-    for name, handle in entries:  # each name beside its own algorithm's line, in that line's colour
+    for name, handle in entries:
         assert isinstance(handle, Line2D) and to_hex(handle.get_color()) == lines[name]
     assert lines["p3o_atari_envpool"] != lines["ppo_atari_envpool"]
 
