@@ -26,8 +26,14 @@ set -euo pipefail
 # the tables and figures of every committed run of the group (after each pair, so a session that ends
 # between pairs leaves them up to date)
 tables() {
-    local out=$1 steps=$2
-    $PYTHON "${base}benchmark/results.py" "$out/runs" --out "$out"
+    local out=$1 steps=$2 readme=()
+    # the thesis regime's tables in a repository's benchmark/results/learning_check/ also rewrite the results
+    # block of that repository's README (tests/test_results.py checks the README against the committed runs)
+    if [ "$mode" = thesis ] &&
+        grep -qF "<!-- begin: written by benchmark/results.py --readme" "$out/../../../README.md" 2>/dev/null; then
+        readme=(--readme "$(cd "$out/../../.." && pwd)/README.md")
+    fi
+    $PYTHON "${base}benchmark/results.py" "$out/runs" --out "$out" "${readme[@]}"
     # the training return (last 100 games, and per fifth of training) and P3O's mean beta per fifth of training
     $PYTHON "${base}benchmark/results.py" "$out/runs" --out "$out" --tag charts/episodic_return --last 100 \
         --table-name train_last100 --window-steps "$((steps / 5))" --no-figures --no-hours
@@ -48,7 +54,8 @@ fi
 export PYTHON
 
 main() {
-    local mode=${MODE:-thesis} steps=${TOTAL_TIMESTEPS:-1000000} seeds=${SEEDS:-1 2 3}
+    mode=${MODE:-thesis}
+    local steps=${TOTAL_TIMESTEPS:-1000000} seeds=${SEEDS:-1 2 3}
     local games=${GAMES:-Breakout-v5 Freeway-v5 Seaquest-v5 Riverraid-v5 Qbert-v5 MsPacman-v5}
     local group sizes
     case "$mode" in

@@ -40,6 +40,18 @@ REFERENCE_SCORES = {
     "Seaquest": (68.4, 42054.7),
     "SpaceInvaders": (148.0, 1668.7),
 }
+# The thesis's table 5.1 (20M steps, one trained model per game, 10 evaluation games): P3O, PPO
+THESIS_TABLE = {
+    "Breakout": (668.6, 363.4),
+    "Freeway": (22.9, 22.8),
+    "Seaquest": (2552.5, 1806.0),
+    "Riverraid": (8898.0, 8096.7),
+    "Qbert": (18462.5, 16855.0),
+    "MsPacman": (5015.0, 1975.0),
+}
+# --readme replaces what lies between these two lines of the file with the results table and aggregate line
+README_BEGIN = "<!-- begin: written by benchmark/results.py --readme from the committed runs; do not edit by hand -->"
+README_END = "<!-- end: written by benchmark/results.py --readme -->"
 FIGURES = {  # file suffix: (tag, y label, title)
     "episodic_return": ("charts/episodic_return", "episodic return (game score)", "episodic return, mean ± s.e."),
     "return_last10": ("charts/episodic_return", "mean return of the last 10 games", "last-10-games average"),
@@ -84,6 +96,9 @@ class Args:
     """stratified-bootstrap replications for the across-game confidence intervals"""
     seed: int = 0
     """seed of the bootstrap"""
+    readme: str | None = None
+    """a Markdown file (the README) whose block between the two marker lines (README_BEGIN, README_END) is
+    replaced by the results table (with the per-game tests and the thesis's table 5.1) and the across-game line"""
     hours: bool = True
     """also write OUT/hours.md and .csv: how long each training run took, from the times of its per-iteration
     `charts/SPS` points and its event files' names"""
@@ -288,7 +303,7 @@ def summarise_windows(runs, tag, window) -> dict:
 
 
 def steps_label(steps: int) -> str:
-    return "0" if steps == 0 else f"{steps / 1e6:g}M" if steps % 1_000_000 == 0 else f"{steps / 1e3:g}k"
+    return "0" if steps == 0 else f"{steps / 1e6:g}M" if steps >= 1_000_000 else f"{steps / 1e3:g}k"
 
 
 def write_window_table(table, out, name, tag, window) -> str:
@@ -399,6 +414,29 @@ def human_normalised(score, env):
     return (score - random_score) / (human_score - random_score)
 
 
+def mean_gap_shares(scores, games, p3o, ppo) -> tuple[str, float, dict]:
+    """Per game, its part of the gap between the two algorithms' human-normalised means (the mean over games
+    of each game's mean over runs, as rliable's): (P3O's game mean - PPO's) / the number of games, and that
+    as a share of the whole gap, so that a reader sees when one game decides the mean."""
+    per_game = scores[p3o].mean(axis=0) - scores[ppo].mean(axis=0)  # [games]
+    gap = per_game.sum() / len(games)
+    lines = [
+        f"The mean's gap, {p3o} - {ppo}, is {gap:.3f}; each game's part of it (its difference of means over runs,"
+        " divided by the number of games) and share (negative: that game pulls the other way):",
+        "",
+        "| game | difference of means | part of the gap | share of the gap |",
+        "|---|---|---|---|",
+    ]
+    shares = {
+        env: difference / len(games) / gap if gap != 0 else None
+        for env, difference in zip(games, per_game, strict=True)
+    }
+    for env, difference in zip(games, per_game, strict=True):
+        share = f"{100 * shares[env]:.0f}%" if gap != 0 else "–"
+        lines.append(f"| {env} | {difference:.3f} | {difference / len(games):.3f} | {share} |")
+    return "\n".join(lines), float(gap), shares
+
+
 def per_game_scores(runs, tag, last, algos) -> dict:
     """env -> algo -> the per-run statistics of the tag, for the algorithms named."""
     per = {}
@@ -409,7 +447,7 @@ def per_game_scores(runs, tag, last, algos) -> dict:
     return per
 
 
-def across_games(runs, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tuple[str | None, list[str]]:
+def across_games(runs, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tuple[str | None, list[str], dict]:
     """The interquartile mean, median and mean of human-normalised scores with stratified-bootstrap 95% CIs,
     the probability that P3O improves on PPO, and (with `figure_path`) the performance profile, with rliable
     (Agarwal et al. 2021)."""
@@ -425,7 +463,7 @@ def across_games(runs, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tup
         per[env] = {algo: [human_normalised(x, env) for x in stats] for algo, stats in algos.items()}
     games = sorted(env for env, algos in per.items() if p3o in algos and ppo in algos)
     if not games:
-        return None, sorted(set(notes))
+        return None, sorted(set(notes)), {}
     n = min(len(per[env][algo]) for env in games for algo in (p3o, ppo))
     unequal = ""
     if any(len(per[env][algo]) != n for env in games for algo in (p3o, ppo)):
@@ -466,8 +504,8 @@ def across_games(runs, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tup
         + f", human-normalised; {reps} stratified-bootstrap replications (rliable). The IQM is over every run of"
         " every game; the median and mean are over the games, of each game's mean over its runs." + unequal,
         "",
-        "| algorithm | " + " | ".join(f"{name} | 95% CI" for name, _ in aggregates) + " |",
-        "|---|" + "---|---|" * len(aggregates),
+        "| algorithm | runs per game | " + " | ".join(f"{name} | 95% CI" for name, _ in aggregates) + " |",
+        "|---|---|" + "---|---|" * len(aggregates),
     ]
     if n == 1:  # the bootstrap resamples runs within each game: with one, every replication is the same
         lines[0] += (
@@ -477,9 +515,11 @@ def across_games(runs, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tup
     interval = (lambda lo, hi: f"[{lo:.3f}, {hi:.3f}]") if n > 1 else (lambda lo, hi: "–")
     for algo in (p3o, ppo):
         cells = [f"{point[algo][k]:.3f} | {interval(ci[algo][0][k], ci[algo][1][k])}" for k in range(len(aggregates))]
-        lines.append(f"| {algo} | " + " | ".join(cells) + " |")
+        lines.append(f"| {algo} | {n} | " + " | ".join(cells) + " |")
     poi_interval = interval(float(np.squeeze(poi_ci[pair][0])), float(np.squeeze(poi_ci[pair][1])))
     lines += ["", f"P({p3o} > {ppo}) = {float(np.squeeze(poi[pair])):.3f}, 95% CI {poi_interval}"]
+    shares_text, gap, shares = mean_gap_shares(scores, games, p3o, ppo)
+    lines += ["", shares_text]
     if figure_path:
         import matplotlib
 
@@ -498,36 +538,73 @@ def across_games(runs, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tup
         # named relative to the table, which sits in the same folder, so the committed text holds no machine's path
         name = os.path.basename(figure_path)
         lines += ["", f"Performance profile (fraction of runs above each human-normalised score): `{name}`"]
-    return "\n".join(lines) + "\n", sorted(set(notes))
+    numbers = {
+        "games": games,
+        "runs": n,
+        "reps": reps,
+        "aggregates": {
+            algo: {name: (point[algo][k], ci[algo][0][k], ci[algo][1][k]) for k, (name, _) in enumerate(aggregates)}
+            for algo in (p3o, ppo)
+        },
+        "mean_gap": (gap, shares),
+        "improvement": tuple(float(np.squeeze(x)) for x in (poi[pair], poi_ci[pair][0], poi_ci[pair][1])),
+    }
+    return "\n".join(lines) + "\n", sorted(set(notes)), numbers
+
+
+def exact_permutation_p(a, b) -> float:
+    """The two-sided p of the difference of means under every split of the pooled runs into groups of
+    len(a) and len(b) (scipy's exact permutation test: 20 splits for 3 against 3, 252 for 5 against 5).
+    Ties count as they fall, unlike the exact Mann-Whitney U of scipy, which ignores them."""
+    from scipy import stats
+
+    def difference(x, y, axis):
+        return np.mean(x, axis=axis) - np.mean(y, axis=axis)
+
+    test = stats.permutation_test(
+        (a, b), difference, permutation_type="independent", vectorized=True, n_resamples=np.inf
+    )
+    return float(test.pvalue)
 
 
 def per_game_tests(runs, tag, last, p3o, ppo) -> str | None:
     """Per game, whether P3O and PPO can be told apart: the difference of the means with Welch's 95% CI and
-    two-sided p, and the exact two-sided Mann-Whitney U test (scipy)."""
-    from scipy import stats
+    two-sided p (a t test: assumes roughly normal run scores), and the exact two-sided permutation test of
+    the difference of means (assumes nothing but exchangeable runs)."""
+    from math import comb
 
     per = per_game_scores(runs, tag, last, (p3o, ppo))
     games = sorted(env for env, algos in per.items() if len(algos.get(p3o, [])) > 1 and len(algos.get(ppo, [])) > 1)
     if not games:
         return None
+    sizes = sorted({(len(per[env][p3o]), len(per[env][ppo])) for env in games})
+    smallest = ", ".join(f"{2 / comb(m + k, m):.3g} for {m} runs against {k}" for m, k in sizes)
     lines = [
         f"`{tag}`" + (f" (last {last})" if last else "") + f": per game, {p3o} against {ppo} over their runs:"
-        " difference of the means with Welch's 95% confidence interval and two-sided p, and the exact two-sided"
-        " Mann-Whitney U test (with 3 runs against 3 its smallest possible p is 0.1).",
+        " the difference of the means; Welch's t test (unequal variances) with its 95% confidence interval of"
+        " the difference and two-sided p; and the exact two-sided permutation test of the same difference over"
+        f" every split of the game's runs into two groups (ties count; its smallest possible p is {smallest}).",
         "",
-        "| game | n | difference of means | Welch 95% CI | Welch p | Mann-Whitney U | exact p |",
-        "|---|---|---|---|---|---|---|",
+        "| game | n | difference of means | Welch 95% CI | Welch p | exact permutation p |",
+        "|---|---|---|---|---|---|",
     ]
     for env in games:
-        a, b = np.array(per[env][p3o]), np.array(per[env][ppo])
-        welch = stats.ttest_ind(a, b, equal_var=False)
-        lo, hi = welch.confidence_interval(0.95)
-        u = stats.mannwhitneyu(a, b, alternative="two-sided", method="exact")
+        difference, lo, hi, welch_p, permutation_p = compare(per[env][p3o], per[env][ppo])
         lines.append(
-            f"| {env} | {len(a)} vs {len(b)} | {number(a.mean() - b.mean())} | [{number(lo)}, {number(hi)}] |"
-            f" {welch.pvalue:.3f} | {u.statistic:g} | {u.pvalue:.3f} |"
+            f"| {env} | {len(per[env][p3o])} vs {len(per[env][ppo])} | {number(difference)} |"
+            f" [{number(lo)}, {number(hi)}] | {welch_p:.3f} | {permutation_p:.3f} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def compare(a, b) -> tuple[float, float, float, float, float]:
+    """mean(a) - mean(b), Welch's 95% CI of it and its two-sided p, and the exact permutation test's p."""
+    from scipy import stats
+
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    welch = stats.ttest_ind(a, b, equal_var=False)
+    lo, hi = welch.confidence_interval(0.95)
+    return float(a.mean() - b.mean()), float(lo), float(hi), float(welch.pvalue), exact_permutation_p(a, b)
 
 
 def write_games_figure(runs, out, grid_points, name) -> str | None:
@@ -663,6 +740,96 @@ def write_hours(runs, out) -> str | None:
     return markdown
 
 
+def readme_markers(path: str) -> str:
+    """The file's text, or one sentence and exit 1 when it lacks the two marker lines, in order."""
+    try:
+        text = open(path).read()
+    except OSError as e:
+        sys.exit(f"error: --readme {path} cannot be read ({e.strerror}).")
+    if (
+        text.count(README_BEGIN) != 1
+        or text.count(README_END) != 1
+        or text.index(README_BEGIN) > text.index(README_END)
+    ):
+        sys.exit(f"error: --readme {path} needs the line {README_BEGIN!r} and, after it, {README_END!r}, once each.")
+    return text
+
+
+def rounded(x: float, like: float) -> str:
+    """x to the precision that suits `like` (a game score to 1, a return under 100 to 0.1, under 10 to 0.01)."""
+    decimals = 0 if abs(like) >= 100 else 1 if abs(like) >= 10 else 2
+    return f"{x:,.{decimals}f}"
+
+
+def readme_block(runs, table, tag, last, p3o, ppo, aggregate) -> str:
+    """The README's results: per game the mean ± s.e. (n) of each algorithm and the random policy, the two
+    per-game tests, the thesis's table 5.1; then the across-game aggregates in one line."""
+    per = per_game_scores(runs, tag, last, (p3o, ppo))
+    envs = sorted(
+        {env for env, _ in table},
+        key=lambda env: (list(THESIS_TABLE).index(env.split("-")[0]) if env.split("-")[0] in THESIS_TABLE else 99, env),
+    )
+    others = sorted({algo for _, algo in table} - {p3o, ppo})
+    games = [len(run.scalars[tag][1]) for run in runs if tag in run.scalars]
+    each = f"the mean of its {games[0]} values" if len(set(games)) == 1 else "the mean of its values"
+    lines = [
+        f"Per game: mean ± standard error over n runs (n in brackets), each run's score being {each} of `{tag}`"
+        + (f" (the last {last})" if last else "")
+        + "; the standard error is the population standard deviation over the runs / √n, as in the thesis's"
+        " table 5.1. Tests of the difference: Welch's t and the exact permutation test (two-sided p).",
+        "",
+        "| game | P3O | PPO | "
+        + " | ".join(f"{algo} policy" if algo == "random" else algo for algo in others)
+        + (" | " if others else "")
+        + "P3O − PPO: difference; Welch p, permutation p | thesis table 5.1 (20M): P3O / PPO |",
+        "|---|---|---|" + "---|" * len(others) + "---|---|",
+    ]
+    for env in envs:
+        cells = []
+        for algo in [p3o, ppo, *others]:
+            if (env, algo) in table:
+                mean, se, n = table[env, algo]
+                cells.append(
+                    f"{rounded(mean, mean)} ± {rounded(se, mean)} ({n})" if n > 1 else f"{rounded(mean, mean)} (1)"
+                )
+            else:
+                cells.append("–")
+        a, b = per.get(env, {}).get(p3o, []), per.get(env, {}).get(ppo, [])
+        if len(a) > 1 and len(b) > 1:
+            difference, _, _, welch_p, permutation_p = compare(a, b)
+            sign = "+" if difference > 0 else ""
+            like = max(abs(np.mean(a)), abs(np.mean(b)))
+            cells.append(f"{sign}{rounded(difference, like)}; {welch_p:.3f}, {permutation_p:.3f}")
+        else:
+            cells.append("–")
+        thesis = THESIS_TABLE.get(env.split("-")[0])
+        cells.append(f"{thesis[0]:,.1f} / {thesis[1]:,.1f}" if thesis else "–")
+        lines.append(f"| {env.split('-')[0]} | " + " | ".join(cells) + " |")
+    if aggregate:
+        k = aggregate["aggregates"]
+        parts = [
+            f"{name} {k[p3o][name][0]:.3f} [{k[p3o][name][1]:.3f}, {k[p3o][name][2]:.3f}] against"
+            f" {k[ppo][name][0]:.3f} [{k[ppo][name][1]:.3f}, {k[ppo][name][2]:.3f}]"
+            for name in ("IQM", "median", "mean")
+        ]
+        poi, lo, hi = aggregate["improvement"]
+        lines += [
+            "",
+            f"**Across the {len(aggregate['games'])} games** ({aggregate['runs']} runs each, human-normalised, 95%"
+            f" stratified-bootstrap CIs over {aggregate['reps']:,} replications, rliable), P3O against PPO: "
+            + "; ".join(parts)
+            + f"; P(P3O > PPO) = {poi:.3f} [{lo:.3f}, {hi:.3f}].",
+        ]
+        gap, shares = aggregate["mean_gap"]
+        if gap != 0:
+            parts = [
+                f"{env.split('-')[0]} {100 * share:.0f}%"
+                for env, share in sorted(shares.items(), key=lambda x: -abs(x[1]))
+            ]
+            lines[-1] += f" Each game's share of the mean's gap ({gap:.3f}): " + ", ".join(parts) + "."
+    return "\n".join(lines) + "\n"
+
+
 def main(args: Args) -> dict:
     if args.last < 0 or args.window_steps < 0 or args.grid_points < 2 or args.bootstrap_reps < 1:
         sys.exit(
@@ -675,6 +842,7 @@ def main(args: Args) -> dict:
                 sys.exit("error: --group-regex needs the named groups (?P<env>...) and (?P<algo>...).")
         except re.error as e:
             sys.exit(f"error: --group-regex is not a regular expression ({e}).")
+    readme = readme_markers(args.readme) if args.readme else None
     runs, problems = find_runs(args.roots, args.group_regex, args.above)
     for problem in problems:
         print(f"skipped: {problem}", file=sys.stderr)
@@ -696,7 +864,7 @@ def main(args: Args) -> dict:
         print(write_window_table(result["windows"], args.out, args.table_name, label, args.window_steps))
         print(f"wrote {os.path.join(args.out, args.table_name)}_windows.md and .csv")
     profile = os.path.join(args.out, f"{args.table_name}_performance_profile.png") if args.figures else None
-    comparison, notes = across_games(
+    comparison, notes, aggregate = across_games(
         runs, args.tag, args.last, args.p3o_name, args.ppo_name, args.bootstrap_reps, args.seed, profile
     )
     for note in notes:
@@ -712,6 +880,15 @@ def main(args: Args) -> dict:
             f.write(tests)
         print(tests)
     result["per_game_tests"] = tests
+    if readme is not None:
+        block = readme_block(runs, table, label, args.last, args.p3o_name, args.ppo_name, aggregate)
+        before, rest = readme.split(README_BEGIN)
+        after = rest.split(README_END)[1]
+        with open(f"{args.readme}.tmp", "w") as f:  # written whole, then renamed: never half a README
+            f.write(f"{before}{README_BEGIN}\n{block}{README_END}{after}")
+        os.replace(f"{args.readme}.tmp", args.readme)
+        print(f"wrote the results block of {args.readme}")
+        result["readme_block"] = block
     result["hours"] = write_hours(runs, args.out) if args.hours else None
     if result["hours"]:
         print(result["hours"])

@@ -181,7 +181,7 @@ def test_across_games_iqm_and_probability_of_improvement(root, tmp_path):
     for algo, (breakout, qbert) in {P3O: ([10, 20, 30], [4.5, 100, 200]), PPO: ([5, 7, 9], [50, 150, 250])}.items():
         scores = [(x - 1.7) / (30.5 - 1.7) for x in breakout] + [(x - 163.9) / (13455.0 - 163.9) for x in qbert]
         iqm = np.sort(scores)[1:-1].mean()
-        row = re.search(rf"\| {algo} \| (-?[\d.]+) \| \[(-?[\d.]+), (-?[\d.]+)\] \|", text)
+        row = re.search(rf"\| {algo} \| 3 \| (-?[\d.]+) \| \[(-?[\d.]+), (-?[\d.]+)\] \|", text)
         point, lo, hi = (float(g) for g in row.groups())
         assert point == pytest.approx(iqm, abs=5e-4)
         # a bootstrap IQM averages values drawn from the scores, so the interval lies within their range
@@ -263,24 +263,54 @@ def test_across_games_median_mean_and_the_per_game_tests(root, tmp_path):
 
     result = results.main(results.Args(roots=(root,), out=str(tmp_path), figures=False, bootstrap_reps=200))
     text = result["across_games"]
-    assert "| algorithm | IQM | 95% CI | median | 95% CI | mean | 95% CI |" in text
+    assert "| algorithm | runs per game | IQM | 95% CI | median | 95% CI | mean | 95% CI |" in text
+    per_game = {}
     for algo, (breakout, qbert) in {P3O: ([10, 20, 30], [4.5, 100, 200]), PPO: ([5, 7, 9], [50, 150, 250])}.items():
         scores = [(x - 1.7) / (30.5 - 1.7) for x in breakout] + [(x - 163.9) / (13455.0 - 163.9) for x in qbert]
         row = re.search(rf"\| {algo} \|(.*)\|\n", text).group(1).split("|")
-        per_game = [np.mean(scores[:3]), np.mean(scores[3:])]  # rliable: median and mean over games of their means
-        assert float(row[2]) == pytest.approx(np.median(per_game), abs=5e-4)
-        assert float(row[4]) == pytest.approx(np.mean(per_game), abs=5e-4)
+        per_game[algo] = [np.mean(scores[:3]), np.mean(scores[3:])]  # rliable: median and mean over game means
+        assert int(row[0]) == 3  # the runs per game beside the aggregates
+        assert float(row[3]) == pytest.approx(np.median(per_game[algo]), abs=5e-4)
+        assert float(row[5]) == pytest.approx(np.mean(per_game[algo]), abs=5e-4)
+    # each game's share of the mean's gap: its difference of means / the number of games / the gap
+    differences = np.subtract(per_game[P3O], per_game[PPO])
+    gap = differences.mean()
+    assert f"is {gap:.3f};" in text
+    for env, difference in zip(["Breakout-v5", "Qbert-v5"], differences, strict=True):
+        share = 100 * difference / 2 / gap
+        assert f"| {env} | {difference:.3f} | {difference / 2:.3f} | {share:.0f}% |" in text
+    assert round(100 * differences[0] / 2 / gap) > 100 > 0 > round(100 * differences[1] / 2 / gap)  # Qbert pulls back
     tests = result["per_game_tests"]
     assert open(tmp_path / "table_per_game_tests.md").read() == tests
-    # Breakout: P3O (10, 20, 30) against PPO (5, 7, 9): mean difference 13, every P3O run above every PPO run
+    assert "| game | n | difference of means | Welch 95% CI | Welch p | exact permutation p |" in tests
+    assert "smallest possible p is 0.1 for 3 runs against 3" in tests
+    # Breakout: P3O (10, 20, 30) against PPO (5, 7, 9): mean difference 13, every P3O run above every PPO run,
+    # which 2 of the 20 splits of six runs into three and three reach: exact p = 0.1
     row = re.search(
-        r"\| Breakout-v5 \| 3 vs 3 \| 13\.0 \| \[(-?[\d.]+), (-?[\d.]+)\] \| ([\d.]+) \| 9 \| ([\d.]+) \|", tests
+        r"\| Breakout-v5 \| 3 vs 3 \| 13\.0 \| \[(-?[\d.]+), (-?[\d.]+)\] \| ([\d.]+) \| ([\d.]+) \|", tests
     )
     welch = stats.ttest_ind([10, 20, 30], [5, 7, 9], equal_var=False)
     lo, hi = welch.confidence_interval(0.95)
     assert (float(row.group(1)), float(row.group(2))) == (pytest.approx(lo, abs=0.05), pytest.approx(hi, abs=0.05))
     assert float(row.group(3)) == pytest.approx(welch.pvalue, abs=5e-4) and float(row.group(4)) == 0.1
     assert "| Qbert-v5 | 3 vs 3 | -48.5 | " in tests  # (4.5 + 100 + 200) / 3 - 150
+
+
+def test_the_exact_permutation_test_counts_ties_and_every_split():
+    from itertools import combinations
+
+    # Freeway's three seeds: a 0.0 on each side. Mann-Whitney's exact p ignores the tie (1.0); over all 20 splits
+    # the difference of means is at least as far from 0 as the observed 0.3 in 16 of them: p = 0.8
+    p3o, ppo = [27.9, 0.0, 28.7], [27.6, 28.1, 0.0]
+    assert results.exact_permutation_p(p3o, ppo) == pytest.approx(0.8)
+    # brute force over every split, two-sided as scipy's (twice the smaller tail)
+    pooled, observed = np.array(p3o + ppo), np.mean(p3o) - np.mean(ppo)
+    splits = [np.mean(pooled[list(i)]) - np.mean(np.delete(pooled, list(i))) for i in combinations(range(6), 3)]
+    tails = (np.mean(np.array(splits) >= observed - 1e-9), np.mean(np.array(splits) <= observed + 1e-9))
+    assert results.exact_permutation_p(p3o, ppo) == pytest.approx(min(1.0, 2 * min(tails)))
+    # five runs against five, every one of one side above the other's: 2 of the 252 splits, p = 0.0079
+    assert results.exact_permutation_p([6, 7, 8, 9, 10], [1, 2, 3, 4, 5]) == pytest.approx(2 / 252)
+    assert results.exact_permutation_p([1, 2, 3], [1, 2, 3]) == 1.0
 
 
 def test_the_games_figure_and_the_performance_profile(root, tmp_path, monkeypatch):
@@ -375,11 +405,11 @@ def test_games_with_more_runs_than_others_say_in_the_table_which_runs_the_compar
     # one run per game: the IQM of two values is their mean; seed 1's Breakout (10 and 5), not 20 or 30
     for algo, breakout, freeway in ((P3O, 10.0, 27.0), (PPO, 5.0, 21.0)):
         expected = ((breakout - 1.7) / (30.5 - 1.7) + (freeway - 0.0) / (29.6 - 0.0)) / 2
-        row = re.search(rf"\| {algo} \| (-?[\d.]+) \|", text)
+        row = re.search(rf"\| {algo} \| 1 \| (-?[\d.]+) \|", text)
         assert float(row.group(1)) == pytest.approx(expected, abs=5e-4)
     # one run per game: the bootstrap has nothing to resample, so no interval (not [x, x])
     assert "With one run per game there is nothing to resample, so no confidence interval is given" in text
-    assert re.search(rf"\| {P3O} \| [\d.]+ \| – \| [\d.]+ \| – \| [\d.]+ \| – \|", text)
+    assert re.search(rf"\| {P3O} \| 1 \| [\d.]+ \| – \| [\d.]+ \| – \| [\d.]+ \| – \|", text)
     assert re.search(rf"P\({P3O} > {PPO}\) = [\d.]+, 95% CI –", text)
 
 
@@ -430,3 +460,51 @@ def test_hours_are_the_elapsed_time_of_each_process_and_the_union_over_runs(tmp_
     # union: [t0, t0 + 4,100] and [t0 + 36,000, t0 + 39,700] = 7,800 s
     assert "All 2 runs: 2.9 hours elapsed summed over runs" in markdown
     assert "training during 2.2 hours of wall clock between 2023-11-14 22:13 UTC and 2023-11-15 09:15 UTC" in markdown
+
+
+def test_readme_replaces_only_the_block_between_its_markers(root, tmp_path):
+    readme = tmp_path / "README.md"
+    text = f"# title\n\nbefore\n{results.README_BEGIN}\nstale table\n{results.README_END}\nafter\n"
+    readme.write_text(text)
+    result = results.main(
+        results.Args(roots=(root,), out=str(tmp_path / "out"), figures=False, bootstrap_reps=200, readme=str(readme))
+    )
+    written = readme.read_text()
+    assert written.startswith("# title\n\nbefore\n" + results.README_BEGIN + "\n")
+    assert written.endswith(results.README_END + "\nafter\n") and "stale table" not in written
+    block = result["readme_block"]
+    assert written == text.replace("stale table\n", block)
+    # per game: mean ± s.e. (n), the two tests, the thesis's table 5.1; then the across-game line
+    assert "| Breakout | 20.0 ± 4.7 (3) | 7.00 ± 0.94 (3) | +13.0; " in block  # population std / √3
+    welch = float(re.search(r"\| Breakout \|.*\+13\.0; ([\d.]+), ([\d.]+) \|", block).group(1))
+    from scipy import stats
+
+    assert welch == pytest.approx(stats.ttest_ind([10, 20, 30], [5, 7, 9], equal_var=False).pvalue, abs=5e-4)
+    assert "| 668.6 / 363.4 |" in block and "| 18,462.5 / 16,855.0 |" in block
+    assert "**Across the 2 games** (3 runs each" in block and "P(P3O > PPO) = " in block
+
+
+def test_a_readme_without_its_markers_is_refused_before_any_work(root, tmp_path, capsys):
+    readme = tmp_path / "README.md"
+    readme.write_text("# a README with no results block\n")
+    for path in (readme, tmp_path / "missing.md"):
+        with pytest.raises(SystemExit) as stop:
+            results.main(results.Args(roots=(root,), out=str(tmp_path / "out"), readme=str(path)))
+        assert str(stop.value).startswith(f"error: --readme {path}") and str(path) in str(stop.value)
+    assert not (tmp_path / "out").exists()  # refused before reading a run or writing a file
+    assert readme.read_text() == "# a README with no results block\n"
+
+
+def test_the_readme_results_block_is_what_results_py_writes_from_the_committed_runs(tmp_path):
+    """README.md's table and across-game line come from the committed learning-check runs; when a run is added
+    or results.py changes, rewrite them with the command below instead of by hand."""
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    readme = tmp_path / "README.md"
+    readme.write_text(open(os.path.join(repo, "README.md")).read())
+    runs = os.path.join(repo, "benchmark", "results", "learning_check", "runs")
+    results.main(results.Args(roots=(runs,), out=str(tmp_path), figures=False, hours=False, readme=str(readme)))
+    assert readme.read_text() == open(os.path.join(repo, "README.md")).read(), (
+        "README.md's results block is not what the committed runs give; rewrite it with `uv run python"
+        " benchmark/results.py benchmark/results/learning_check/runs --out benchmark/results/learning_check"
+        " --readme README.md`"
+    )
