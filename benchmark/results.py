@@ -16,6 +16,7 @@ import csv
 import glob
 import os
 import re
+import struct
 import sys
 import time
 import warnings
@@ -148,15 +149,15 @@ def find_runs(roots, group_regex=None, above=None) -> tuple[list[Run], list[str]
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     runs, problems = [], []
-    folders = set()
+    folders = {}  # one run per folder, however it was reached (`runs/x` and `./runs/x`, or a root inside another)
     for root in roots:
         if not os.path.isdir(root):
             problems.append(f"{root}: not a folder")
             continue
         for path in glob.glob(os.path.join(root, "**", "events.out.tfevents.*"), recursive=True):
-            folders.add(os.path.dirname(path))
+            folders.setdefault(os.path.realpath(os.path.dirname(path)), os.path.dirname(path))
     pattern = re.compile(group_regex) if group_regex else None
-    for folder in sorted(folders):
+    for folder in sorted(folders.values()):
         name = os.path.basename(os.path.normpath(folder))
         try:
             acc = EventAccumulator(
@@ -191,7 +192,9 @@ def find_runs(roots, group_regex=None, above=None) -> tuple[list[Run], list[str]
         elif "env_id" in identity and "exp_name" in identity:
             env, algo = identity["env_id"], identity["exp_name"]
             parts = name.split("__")
-            if len(parts) >= 3 and re.fullmatch(r"[A-Za-z0-9]+-v\d+", parts[0]) and (parts[0], parts[1]) != (env, algo):
+            # an exp name may hold `__` itself: the folder agrees when it starts with the logged env id and exp name
+            agrees = name == f"{env}__{algo}" or name.startswith(f"{env}__{algo}__")
+            if len(parts) >= 3 and re.fullmatch(r"[A-Za-z0-9]+-v\d+", parts[0]) and not agrees:
                 # the folder name is what TensorBoard shows and what the user can rename: it decides, loudly
                 print(
                     f"warning: {folder}: the folder name says {parts[0]} / {parts[1]} but the run logged {env} /"
@@ -209,9 +212,55 @@ def find_runs(roots, group_regex=None, above=None) -> tuple[list[Run], list[str]
         if not scalars:
             problems.append(f"{folder}: no scalar events, skipped")
             continue
-        starts = [re.match(r"events\.out\.tfevents\.(\d+)", f) for f in sorted(os.listdir(folder))]
-        runs.append(Run(folder, env, algo, scalars, iteration_times, tuple(float(m[1]) for m in starts if m)))
+        starts = []
+        for file in sorted(glob.glob(os.path.join(folder, "events.out.tfevents.*"))):
+            damage = truncation(file)
+            if damage:
+                print(f"warning: {file}: {damage}; the complete records before it are used", file=sys.stderr)
+            start = re.match(r"events\.out\.tfevents\.(\d+)", os.path.basename(file))
+            if start and written_by_a_training_process(file):
+                starts.append(float(start[1]))
+        runs.append(Run(folder, env, algo, scalars, iteration_times, tuple(starts)))
     return runs, problems
+
+
+def truncation(path: str) -> str | None:
+    """What is wrong with an event file whose records do not fill it exactly (a write cut short: a killed
+    process, a full disk, a partial copy), or None. A record is a little-endian uint64 length, its 4-byte CRC,
+    the data and the data's 4-byte CRC."""
+    size, position, records = os.path.getsize(path), 0, 0
+    with open(path, "rb") as f:
+        while position < size:
+            header = f.read(12)
+            length = struct.unpack("<Q", header[:8])[0] if len(header) == 12 else None
+            if length is None or position + 16 + length > size:
+                return (
+                    f"truncated: its last {size - position} bytes are an incomplete record (after {records} complete)"
+                )
+            f.seek(length + 4, os.SEEK_CUR)
+            position += 16 + length
+            records += 1
+    return None
+
+
+def written_by_a_training_process(path: str) -> bool:
+    """Whether an event file is one process's part of a training run: the first start's file opens with the
+    logged hyperparameters, each resume's with TensorBoard's session start (its purge step). Any other event
+    file in the folder (a copy, another tool's) is not a start or a resume of the run."""
+    from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
+    from tensorboard.compat.proto.event_pb2 import SessionLog
+
+    try:
+        for k, event in enumerate(EventFileLoader(path).Load()):
+            if event.HasField("session_log") and event.session_log.status == SessionLog.START:
+                return True
+            if any(value.tag.startswith("hyperparameters") for value in event.summary.value):
+                return True
+            if k >= 4:  # both come right after the file's version record
+                return False
+    except Exception:  # unreadable from the start
+        return False
+    return False
 
 
 def run_statistic(run: Run, tag: str, last: int) -> float | None:

@@ -418,6 +418,8 @@ def write_process(folder, start, iterations, every, purge_step=None):
     start-up, in an event file named for `start` as SummaryWriter names it (`events.out.tfevents.<start>...`)."""
     scratch = f"{folder}.process"
     writer = SummaryWriter(scratch, purge_step=purge_step)
+    if purge_step is None:  # a first start logs its hyperparameters first, as the training scripts do
+        writer.add_text("hyperparameters", "|param|value|\n|-|-|\n|seed|1|", walltime=start)
     for k, iteration in enumerate(iterations, start=1):
         writer.add_scalar("charts/SPS", 100.0, iteration * 4096, walltime=start + 100 + every * k)
     writer.close()
@@ -439,6 +441,12 @@ def test_hours_are_the_elapsed_time_of_each_process_and_the_union_over_runs(tmp_
     write_process(p3o, t0, range(1, 11), every=300)
     write_process(p3o, t0 + 30_000, [], every=300, purge_step=8 * 4096 + 1)  # killed in its start-up
     write_process(p3o, t0 + 36_000, range(9, 21), every=300, purge_step=8 * 4096 + 1)
+    # a stray event file in the run's folder (a copy, another tool's writer): neither a start nor a resume
+    stray = SummaryWriter(str(tmp_path / "stray"))
+    stray.add_text("note", "not a training process", walltime=t0 + 20_000)
+    stray.close()
+    (name,) = os.listdir(tmp_path / "stray")
+    os.rename(tmp_path / "stray" / name, os.path.join(p3o, f"events.out.tfevents.{t0 + 20_000}.other.2.0"))
     write_process(os.path.join(root, f"Breakout-v5__{PPO}__1"), t0, range(1, 21), every=200)
     write_run(root, "Breakout-v5", "random", 1, [1.0] * 10, step_every=50_000)
     out = str(tmp_path / "out")
@@ -508,3 +516,45 @@ def test_the_readme_results_block_is_what_results_py_writes_from_the_committed_r
         " benchmark/results.py benchmark/results/learning_check/runs --out benchmark/results/learning_check"
         " --readme README.md`"
     )
+
+
+def test_one_folder_given_twice_or_under_two_roots_is_one_run(root, tmp_path):
+    single = results.main(results.Args(roots=(root,), out=str(tmp_path / "a"), figures=False, bootstrap_reps=10))
+    dotted = os.path.join(os.path.relpath(root), ".")  # the same folder by another path
+    inner = os.path.join(root, f"Breakout-v5__{P3O}__1__1700000000")
+    twice = results.main(
+        results.Args(roots=(root, dotted, inner), out=str(tmp_path / "b"), figures=False, bootstrap_reps=10)
+    )
+    assert twice["runs"] == single["runs"] and twice["table"] == single["table"]
+    assert twice["table"]["Breakout-v5", P3O][2] == 3
+
+
+def test_an_exp_name_with_double_underscores_is_not_split_at_them(tmp_path, capsys):
+    """Two experiments `my__a` and `my__b`, named by the scripts' default folder name, stay two groups (not
+    one `my` group), and no rename warning is printed; a folder renamed to another algorithm still wins."""
+    root = str(tmp_path / "runs")
+    for exp, value in (("my__a", 10.0), ("my__b", 20.0)):
+        for seed in (1, 2):
+            writer = SummaryWriter(os.path.join(root, f"Breakout-v5__{exp}__{seed}__1700000000"))
+            table = f"|param|value|\n|-|-|\n|exp_name|{exp}|\n|env_id|Breakout-v5|\n|seed|{seed}|"
+            writer.add_text("hyperparameters", table)
+            writer.add_scalar("eval/episodic_return", value, 0)
+            writer.close()
+    result = results.main(results.Args(roots=(root,), out=str(tmp_path / "out"), figures=False, hours=False))
+    assert set(result["table"]) == {("Breakout-v5", "my__a"), ("Breakout-v5", "my__b")}
+    assert result["table"]["Breakout-v5", "my__a"][:3] == (10.0, 0.0, 2)
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_a_truncated_event_file_is_named_and_its_complete_records_used(tmp_path, capsys):
+    root = str(tmp_path / "runs")
+    run = write_run(root, "Breakout-v5", P3O, 1, [7.0] * 10, step_every=50_000)
+    (name,) = [f for f in os.listdir(run) if f.startswith("events.out.tfevents.")]
+    path = os.path.join(run, name)
+    assert results.truncation(path) is None
+    with open(path, "ab") as f:  # a write cut short: a record's header and part of its data
+        f.write((1000).to_bytes(8, "little") + b"\x00" * 4 + b"partial")
+    result = results.main(results.Args(roots=(root,), out=str(tmp_path / "out"), figures=False, hours=False))
+    err = capsys.readouterr().err
+    assert f"warning: {path}: truncated: its last 19 bytes are an incomplete record" in err
+    assert result["table"]["Breakout-v5", P3O][:3] == (7.0, 0.0, 1)  # the complete records are still read
