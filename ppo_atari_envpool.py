@@ -484,7 +484,8 @@ def check_args(args: Args) -> None:
         bad.append("--auto-resume needs --run-name, the run folder it continues.")
     if args.capture_video and not args.eval_episodes:
         bad.append("--capture-video records the evaluation games, but --eval-episodes is 0.")
-    if args.track and importlib.util.find_spec("wandb") is None:
+    # a leftover ./wandb/ folder of an offline run is found as an empty namespace package (no origin), not wandb
+    if args.track and getattr(importlib.util.find_spec("wandb"), "origin", None) is None:
         bad.append("--track needs wandb: run with `uv run --extra wandb ...` (or `pip install wandb`).")
     batch = args.num_envs * args.num_steps
     if not bad and batch % args.num_minibatches:

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # the training scripts
 
+from benchmark.results import folder_problem  # noqa: E402  (the same check for results.py --out)
+
 
 @dataclass
 class Args:
@@ -101,6 +103,8 @@ def main(args: Args) -> dict:
         )
     if args.run_dir and os.path.exists(args.run_dir):
         sys.exit(f"error: --run-dir {args.run_dir} already exists; the evaluation writes a new folder of its own.")
+    if args.run_dir and folder_problem(args.run_dir):  # before the games, not a traceback after them
+        sys.exit(f"error: --run-dir {args.run_dir} cannot be made: {folder_problem(args.run_dir)}.")
     saved = None if args.random else load_model(args.model_path, load_script("ppo"))
     script = load_script("ppo" if saved is None else saved["algorithm"])
     env_id = args.env_id or saved["args"]["env_id"]

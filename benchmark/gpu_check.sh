@@ -36,7 +36,7 @@ else
     tiny=(--num-envs 16 --num-steps 64 --num-minibatches 4 --update-epochs 2 --total-timesteps 2048 --eval-episodes 2)
     thesis=(--thesis --iterations 3 --warmup 1)  # 256 envs x 256 steps, 8 epochs x 8 minibatches
     cleanrl=(--iterations 5 --warmup 1)          # sps.py's default sizes: CleanRL's 8 envs x 128 steps, 4 x 4
-    limits=(60 60 200 90)  # with 30 s for the environment and 20 s for each read-back: 480 s at most
+    limits=(60 60 200 90)  # with 60 s for the environment (10 s measured) and 20 s for each read-back: 510 s at most
 fi
 
 # step NAME SECONDS COMMAND...: COMMAND under `timeout`, its output appended to gpu_check.log, a summary line
@@ -84,7 +84,21 @@ PY
 
 export work device OUT PYTHON
 export -f read_back
-step environment 30 bash -c "nvidia-smi 2>&1 | head -n 15; $PYTHON -c 'import torch, envpool; print(\"torch\", torch.__version__, \"CUDA\", torch.version.cuda, \"available\", torch.cuda.is_available(), torch.cuda.get_device_name(0) if torch.cuda.is_available() else \"\", \"envpool\", envpool.__version__)'"
+# torch and envpool, and on the GPU machine a usable GPU: without one every later step would train on the CPU and
+# read "ok", so the check stops here, naming it
+export REHEARSAL
+environment='import sys, torch, envpool
+cuda = torch.cuda.is_available()
+print("torch", torch.__version__, "CUDA", torch.version.cuda, "available", cuda,
+      torch.cuda.get_device_name(0) if cuda else "", "envpool", envpool.__version__)
+if not cuda and sys.argv[1] != "1":
+    sys.exit(f"torch {torch.__version__} finds no usable GPU (CUDA {torch.version.cuda}), so nothing would run on one")'
+export environment
+step environment 60 bash -c 'nvidia-smi 2>&1 | head -n 15; $PYTHON -c "$environment" "$REHEARSAL"'
+if grep -q '^FAILED  environment' "$OUT/summary.txt"; then
+    echo "summary: $OUT/summary.txt (the environment failed, so nothing else ran); its output: $OUT/gpu_check.log"
+    exit 1
+fi
 for algo in ppo p3o; do
     i=$([ "$algo" = ppo ] && echo 0 || echo 1)
     step "tiny_$algo" "${limits[$i]}" bash -c "cd '$work' && $PYTHON '$root/${algo}_atari_envpool.py' --env-id '$ENV_ID' ${tiny[*]} --run-name $algo"

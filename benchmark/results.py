@@ -789,6 +789,19 @@ def write_hours(runs, out) -> str | None:
     return markdown
 
 
+def folder_problem(path: str) -> str | None:
+    """Why a folder could not be made (or written) at `path`, or None: checked before any work, so that a bad
+    output folder is one sentence up front, not a traceback after the work (benchmark/evaluate.py uses it too)."""
+    probe = os.path.abspath(path)
+    while not os.path.exists(probe):  # the nearest part of the path that exists must be a writable folder
+        probe = os.path.dirname(probe)
+    if not os.path.isdir(probe):
+        return "it is a file" if probe == os.path.abspath(path) else f"{probe} is a file, not a folder"
+    if not os.access(probe, os.W_OK | os.X_OK):
+        return f"{probe} is not writable"
+    return None
+
+
 def readme_markers(path: str) -> str:
     """The file's text, or one sentence and exit 1 when it lacks the two marker lines, in order."""
     try:
@@ -891,6 +904,8 @@ def main(args: Args) -> dict:
                 sys.exit("error: --group-regex needs the named groups (?P<env>...) and (?P<algo>...).")
         except re.error as e:
             sys.exit(f"error: --group-regex is not a regular expression ({e}).")
+    if folder_problem(args.out):
+        sys.exit(f"error: --out {args.out} cannot be a folder for the tables: {folder_problem(args.out)}.")
     readme = readme_markers(args.readme) if args.readme else None
     runs, problems = find_runs(args.roots, args.group_regex, args.above)
     for problem in problems:

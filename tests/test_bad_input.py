@@ -162,3 +162,36 @@ def test_the_device_is_said_and_a_missing_gpu_is_warned_about(module, capsys):
         f"warning: --cuda is on but torch {torch.__version__} ({build}) finds no usable GPU, so this run trains on the"
         " CPU (README.md, 'GPU and driver'; --no-cuda silences this).\n"
     )
+
+
+@pytest.mark.parametrize(
+    "tool,flags,flag",
+    [
+        (
+            "evaluate.py",
+            ["--random", "--env-id", "Breakout-v5", "--episodes", "1", "--run-dir", "{file}/eval"],
+            "--run-dir",
+        ),
+        ("results.py", ["{runs}", "--out", "{file}"], "--out"),
+        ("results.py", ["{runs}", "--out", "{file}/tables"], "--out"),
+    ],
+)
+def test_an_output_folder_under_a_file_is_refused_before_the_work(tool, flags, flag, tmp_path):
+    """A folder that cannot be made is one sentence up front, not a traceback after the games or the tables."""
+    blocker = tmp_path / "blocker"
+    blocker.write_text("a file where the folder would go")
+    runs = os.path.join(ROOT, "benchmark", "results", "breakout_gpu", "runs")
+    flags = [f.format(file=blocker, runs=runs) for f in flags]
+    proc = subprocess.run(
+        [sys.executable, os.path.join(ROOT, "benchmark", tool), *flags],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 1, proc.stderr
+    line = f"error: {flag} {flags[flags.index(flag) + 1]} "
+    assert proc.stderr.startswith(line) and proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+    assert str(blocker) in proc.stderr and "is a file" in proc.stderr
+    assert "game 0" not in proc.stdout and "wrote" not in proc.stdout  # no game played, no table written
+    assert blocker.read_text() == "a file where the folder would go"

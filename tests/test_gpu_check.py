@@ -95,3 +95,14 @@ def test_the_scripts_train_without_imageio_ffmpeg(tmp_path):
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert (tmp_path / "runs" / "ppo" / "eval.json").is_file() and (tmp_path / "runs" / "p3o" / "eval.json").is_file()
+
+
+def test_without_a_gpu_the_check_stops_at_the_environment_step(tmp_path):
+    """On the GPU machine a torch that finds no GPU must not read "ok": every later step would train on the CPU.
+    Here (no GPU) the real check, not the rehearsal, fails its first step with the reason and runs nothing else."""
+    proc = gpu_check(tmp_path / "out", REHEARSAL="0")
+    assert proc.returncode == 1
+    (line,) = (tmp_path / "out" / "summary.txt").read_text().splitlines()
+    assert line.startswith("FAILED  environment (") and "exit 1: torch " in line and "finds no usable GPU" in line
+    assert "nothing else ran" in proc.stdout
+    assert sorted(os.listdir(tmp_path / "out")) == ["gpu_check.log", "summary.txt"]

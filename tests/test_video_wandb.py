@@ -2,6 +2,7 @@
 back from wandb's offline run files."""
 
 import glob
+import importlib.machinery
 import importlib.util
 import json
 import os
@@ -176,13 +177,24 @@ def test_video_without_evaluation_and_track_without_wandb_are_refused(module, tm
         module.main(module.Args(capture_video=True, eval_episodes=0))
     assert excinfo.value.code == "error: --capture-video records the evaluation games, but --eval-episodes is 0."
     find_spec = importlib.util.find_spec
-    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "wandb" else find_spec(name, *a))
-    with pytest.raises(SystemExit) as excinfo:
-        module.main(module.Args(track=True))
-    assert (
-        excinfo.value.code
-        == "error: --track needs wandb: run with `uv run --extra wandb ...` (or `pip install wandb`)."
-    )
+    # without wandb installed, python finds nothing, or, where an offline run left its ./wandb/ folder beside the
+    # script, that folder as an empty namespace package (which is not wandb either)
+    (tmp_path / "wandb").mkdir()
+    leftover = importlib.machinery.PathFinder.find_spec("wandb", [str(tmp_path)])
+    assert leftover is not None and leftover.origin is None
+    # were the check passed, a tiny run would train, tracked by a disabled wandb, and return: the test fails fast
+    monkeypatch.setenv("WANDB_MODE", "disabled")
+    tiny = dict(num_envs=4, num_steps=16, num_minibatches=2, update_epochs=1, total_timesteps=64, eval_episodes=0)
+    for spec in (None, leftover):
+        monkeypatch.setattr(
+            importlib.util, "find_spec", lambda name, *a, s=spec: s if name == "wandb" else find_spec(name, *a)
+        )
+        with pytest.raises(SystemExit) as excinfo:
+            module.main(module.Args(track=True, cuda=False, **tiny))
+        assert (
+            excinfo.value.code
+            == "error: --track needs wandb: run with `uv run --extra wandb ...` (or `pip install wandb`)."
+        )
     assert not (tmp_path / "runs").exists()
 
 
