@@ -55,15 +55,16 @@ export PYTHON
 
 main() {
     mode=${MODE:-thesis}
-    local steps=${TOTAL_TIMESTEPS:-1000000} seeds=${SEEDS:-1 2 3}
-    local games=${GAMES:-Breakout-v5 Freeway-v5 Seaquest-v5 Riverraid-v5 Qbert-v5 MsPacman-v5}
-    local group sizes
+    # unset: the default; set but empty: refused by the sweep's check (not taken as the default)
+    local steps=${TOTAL_TIMESTEPS-1000000} seeds=${SEEDS-1 2 3}
+    local games=${GAMES-Breakout-v5 Freeway-v5 Seaquest-v5 Riverraid-v5 Qbert-v5 MsPacman-v5}
+    local group sizes batch
     case "$mode" in
         thesis)
-            group=learning_check
+            group=learning_check batch=$((16 * 256))
             sizes="--num-envs 16 --num-steps 256 --num-minibatches 4 --update-epochs 8 --learning-rate 1e-3 --no-anneal-lr" ;;
         cleanrl)
-            group=learning_check_cleanrl
+            group=learning_check_cleanrl batch=$((8 * 128))
             sizes="--num-envs 8 --num-steps 128 --num-minibatches 4 --update-epochs 4 --learning-rate 2.5e-4" ;;
         *)
             echo "error: MODE must be thesis or cleanrl, got '$mode'." >&2
@@ -74,6 +75,23 @@ main() {
         ALGOS="ppo p3o" OMP_NUM_THREADS=1 bash "${base}benchmark/p3o_vs_ppo.sh")
     GAMES=$games SEEDS=$seeds DRY_RUN=1 "${sweep[@]}" >/dev/null
     local out=${OUT:-${base}benchmark/results/$group} ran=0 seed game algo
+    # committed runs made for another number of steps would be skipped as done and tabulated with this one's
+    # windows: name the first one instead (a run of S steps ends at the last whole batch, as eval.json says)
+    $PYTHON - "$out/runs" "$((steps / batch * batch))" "$games" "$seeds" <<'PY' || exit 1
+import json, os, sys
+
+folder, final, games, seeds = sys.argv[1], int(sys.argv[2]), sys.argv[3].split(), sys.argv[4].split()
+for game in games:
+    for seed in seeds:
+        for algo in ("ppo", "p3o"):
+            path = os.path.join(folder, f"{game}__{algo}_atari_envpool__{seed}", "eval.json")
+            made = json.load(open(path)).get("global_step") if os.path.isfile(path) else None
+            if made is not None and made != final:
+                sys.exit(
+                    f"error: {os.path.dirname(path)} was trained for {made:,} steps, not the {final:,} that"
+                    f" TOTAL_TIMESTEPS={os.environ.get('TOTAL_TIMESTEPS', '1000000')} gives; use another OUT."
+                )
+PY
     mkdir -p "$out/runs"
     for seed in $seeds; do
         for game in $games; do

@@ -14,7 +14,12 @@
 #   SEEDS            seeds (default: 1 2 ... 10)
 #   ALGOS            which scripts: ppo, p3o or both (default: "ppo p3o")
 #   TOTAL_TIMESTEPS  steps per run (default: 20000000)
-#   EXTRA_ARGS       more flags for both scripts, e.g. "--num-envs 64"
+#   EXTRA_ARGS       more flags for both scripts, e.g. "--num-envs 64", split at spaces (no quotes); not the
+#                    flags the sweep sets per run (--env-id, --seed, --total-timesteps, --run-name, --exp-name,
+#                    --ewma-alpha, --resume, --auto-resume): they would make runs differ from their names
+#   DRY_RUN, SLURM   1 (or true) or 0 (or false); GAMES, SEEDS and ALGOS, when set, must be non-empty and
+#                    name each entry once. Runs already in runs/$GROUP made with other settings are named and
+#                    refused (give another GROUP), never skipped as done or resumed.
 #   WORKERS          runs at a time: local processes, or the array's % limit under Slurm (default: 1)
 #   OMP_NUM_THREADS  torch's threads per run (default: the cores / WORKERS locally when WORKERS > 1, the task's
 #                    --cpus-per-task under Slurm): runs that each take every core slow one another down
@@ -24,9 +29,10 @@
 #   SIGNAL_SECONDS   Slurm signals SIGTERM this long before the time limit (default: 300)
 set -euo pipefail
 
-GAMES=${GAMES:-"Breakout-v5 Freeway-v5 Seaquest-v5 Riverraid-v5 Qbert-v5 MsPacman-v5"}
-SEEDS=${SEEDS:-"1 2 3 4 5 6 7 8 9 10"}
-ALGOS=${ALGOS:-"ppo p3o"}
+# unset: the default; set but empty: refused below (an empty SEEDS is a mistake, not "every seed")
+GAMES=${GAMES-"Breakout-v5 Freeway-v5 Seaquest-v5 Riverraid-v5 Qbert-v5 MsPacman-v5"}
+SEEDS=${SEEDS-"1 2 3 4 5 6 7 8 9 10"}
+ALGOS=${ALGOS-"ppo p3o"}
 TOTAL_TIMESTEPS=${TOTAL_TIMESTEPS:-20000000}
 EXTRA_ARGS=${EXTRA_ARGS:-}
 WORKERS=${WORKERS:-1}
@@ -51,6 +57,24 @@ alpha_for() {
 knob_error() { echo "error: $1" >&2; exit 1; }
 [ -n "${GAMES// /}" ] || knob_error "GAMES is empty."
 [ -n "${SEEDS// /}" ] || knob_error "SEEDS is empty."
+[ -n "${ALGOS// /}" ] || knob_error "ALGOS is empty."
+for knob in GAMES SEEDS ALGOS; do  # a repeated entry would start the same run twice
+    repeated=$(tr -s ' ' '\n' <<<"${!knob}" | sed '/^$/d' | sort | uniq -d | head -n 1)
+    [ -z "$repeated" ] || knob_error "$knob names '$repeated' twice."
+done
+# 1/true/yes or 0/false/no (or unset); anything else is refused, never taken as 0 (a dry run that trains)
+for knob in DRY_RUN SLURM; do
+    case "${!knob:-0}" in
+        1 | true | yes) printf -v "$knob" 1 ;;
+        0 | false | no) printf -v "$knob" 0 ;;
+        *) knob_error "$knob must be 1 (or true) or 0 (or false), got '${!knob}'." ;;
+    esac
+done
+# the runs are started by splitting the command at spaces, locally and under Slurm alike: no quoting
+case "$EXTRA_ARGS$GROUP" in
+    *[\'\"\\]*) knob_error "EXTRA_ARGS and GROUP are split at spaces and cannot hold quotes or backslashes." ;;
+esac
+[[ "$GROUP" =~ ^[^[:space:]]+$ ]] || knob_error "GROUP must be one folder name without spaces, got '$GROUP'."
 for seed in $SEEDS; do [[ "$seed" =~ ^[0-9]+$ ]] || knob_error "SEEDS must be whole numbers, got '$seed'."; done
 [[ "$TOTAL_TIMESTEPS" =~ ^[1-9][0-9]*$ ]] || knob_error "TOTAL_TIMESTEPS must be a positive whole number, got '$TOTAL_TIMESTEPS'."
 [[ "$WORKERS" =~ ^[1-9][0-9]*$ ]] || knob_error "WORKERS must be a whole number of at least 1, got '$WORKERS'."
@@ -81,18 +105,48 @@ done
 logs="runs/$GROUP/logs"
 
 # every command's arguments, checked by the training script's own parser and check_args (games, seed ranges,
-# EXTRA_ARGS, run names), so that a bad grid stops here instead of in its first run
-$PYTHON - "$root" "${commands[@]}" <<'PY' || exit 1
-import importlib, shlex, sys
+# EXTRA_ARGS, run names), so that a bad grid stops here instead of in its first run; EXTRA_ARGS may not change
+# what names a run (its game, seed, steps, folder, alpha); and a run already in runs/$GROUP must have been made
+# with the same experiment arguments, or the sweep would skip or resume a different experiment
+$PYTHON - "$root" "$EXTRA_ARGS" "${commands[@]}" <<'PY' || exit 1
+import contextlib, importlib, io, os, shlex, sys
 
 sys.path.insert(0, sys.argv[1])
 import tyro
 
-for command in sys.argv[2:]:
+extra = sys.argv[2].split()
+owner = {"env_id": "GAMES", "seed": "SEEDS", "total_timesteps": "TOTAL_TIMESTEPS", "run_name": "GROUP"}
+owner |= {"exp_name": "the run names", "ewma_alpha": "the thesis's alpha per game"}
+owner |= {"auto_resume": "every run", "resume": "every run"}
+for command in sys.argv[3:]:
     words = shlex.split(command)
     at = next(i for i, w in enumerate(words) if w.endswith("_atari_envpool.py"))
     script = importlib.import_module(words[at].rsplit("/", 1)[-1][: -len(".py")])
-    script.check_args(tyro.cli(script.Args, args=words[at + 1 :], prog=words[at]))
+    base = words[at + 1 : len(words) - len(extra)]
+    try:  # tyro's own message is a box of many lines: one sentence instead
+        with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+            args = tyro.cli(script.Args, args=base + extra, prog=words[at], console_outputs=False)
+    except SystemExit:
+        sys.exit(f"error: EXTRA_ARGS '{sys.argv[2]}' holds a flag or value that {os.path.basename(words[at])} does not take (see its --help).")
+    given = vars(tyro.cli(script.Args, args=base, prog=words[at]))
+    for name, knob in owner.items():
+        if name in given and given[name] != getattr(args, name):
+            flag = "--" + name.replace("_", "-")
+            sys.exit(f"error: EXTRA_ARGS sets {flag} ({getattr(args, name)}), which the sweep sets for {knob}.")
+    script.check_args(args)
+    path = os.path.join("runs", args.run_name, "checkpoint.pt")
+    if os.path.isfile(path):
+        try:
+            saved = script.torch.load(path, map_location="cpu", weights_only=True, mmap=True)["args"]
+        except Exception:  # unreadable: the run itself says why when it starts
+            continue
+        skip = script.RUN_FLAGS | set(script.COMPUTED)
+        differ = [n for n in vars(args) if n not in skip and n in saved and saved[n] != getattr(args, n)]
+        if differ:
+            was = ", ".join(f"--{n.replace('_', '-')} {saved[n]} (now {getattr(args, n)})" for n in differ)
+            sys.exit(
+                f"error: runs/{args.run_name} was made with {was}; give this sweep another GROUP, or remove that run."
+            )
 PY
 
 # leave out finished runs (their checkpoint says so); one python call reads every checkpoint that exists
@@ -154,9 +208,9 @@ wait \$child
 SBATCH
 }
 
-if [ "${DRY_RUN:-0}" = 1 ]; then
+if [ "$DRY_RUN" = 1 ]; then
     printf '%s\n' "${commands[@]}"
-    if [ "${SLURM:-0}" = 1 ]; then
+    if [ "$SLURM" = 1 ]; then
         echo "# sbatch $SBATCH_ARGS runs/$GROUP/slurm/$GROUP.sbatch, with:"
         sbatch_script
     fi
@@ -164,7 +218,7 @@ if [ "${DRY_RUN:-0}" = 1 ]; then
 fi
 
 mkdir -p "$logs"
-if [ "${SLURM:-0}" = 1 ]; then
+if [ "$SLURM" = 1 ]; then
     mkdir -p "runs/$GROUP/slurm"
     sbatch_script > "runs/$GROUP/slurm/$GROUP.sbatch"
     # shellcheck disable=SC2086

@@ -138,6 +138,8 @@ def test_a_second_call_skips_finished_pairs_and_remakes_the_tables(checked):
         ({"SEEDS": "1 two"}, "error: SEEDS must be whole numbers, got 'two'."),
         ({"GAMES": "Breakout-v5 Qbertt-v5"}, "error: --env-id Qbertt-v5 is not an envpool environment. Did you mean"),
         ({"SEEDS": "1 4294967296"}, "error: --seed must lie in"),
+        ({"SEEDS": ""}, "error: SEEDS is empty."),  # set but empty: not the default seeds
+        ({"GAMES": ""}, "error: GAMES is empty."),
     ],
 )
 def test_bad_knobs_are_refused_before_anything_runs(knobs, sentence, tmp_path):
@@ -145,3 +147,20 @@ def test_bad_knobs_are_refused_before_anything_runs(knobs, sentence, tmp_path):
     assert proc.returncode == 1 and proc.stderr.startswith(sentence) and proc.stdout == ""
     assert len(proc.stderr.strip().splitlines()) == 1
     assert os.listdir(tmp_path) == []
+
+
+def test_committed_runs_of_another_length_are_named_not_skipped(tmp_path):
+    """Called again with another TOTAL_TIMESTEPS over committed pairs, the check says so before anything runs,
+    instead of skipping them as done and rewriting the tables with the new windows."""
+    out = tmp_path / "out"
+    for algo in ("ppo", "p3o"):
+        run = out / "runs" / f"Breakout-v5__{algo}_atari_envpool__1"
+        run.mkdir(parents=True)
+        (run / "eval.json").write_text(json.dumps({"global_step": STEPS, "returns": [1.0], "mean": 1.0}))
+    proc = learning_check(tmp_path, out, GAMES="Breakout-v5", SEEDS="1", TOTAL_TIMESTEPS=str(2 * STEPS))
+    assert proc.returncode == 1 and proc.stdout == ""
+    assert proc.stderr == (
+        f"error: {out}/runs/Breakout-v5__ppo_atari_envpool__1 was trained for 4,096 steps, not the 8,192 that"
+        " TOTAL_TIMESTEPS=8192 gives; use another OUT.\n"
+    )
+    assert sorted(os.listdir(out)) == ["runs"] and sorted(os.listdir(tmp_path)) == ["out"]

@@ -122,7 +122,9 @@ def test_local_mode_fails_with_status_1_when_a_run_fails(tmp_path):
     env = {"GAMES": "Breakout-v5", "SEEDS": "1", "GROUP": "bad", "PYTHON": sys.executable, "WORKERS": "2"}
     (tmp_path / "runs" / "bad").mkdir(parents=True)
     (tmp_path / "runs" / "bad" / "Breakout-v5__p3o_atari_envpool__1").write_text("in the way")
-    proc = sweep(env | {"EXTRA_ARGS": "--num-envs 4 --num-steps 32 --total-timesteps 128 --eval-episodes 0"}, tmp_path)
+    proc = sweep(
+        env | {"EXTRA_ARGS": "--num-envs 4 --num-steps 32 --eval-episodes 0", "TOTAL_TIMESTEPS": "128"}, tmp_path
+    )
     assert proc.returncode == 1
     log = "runs/bad/logs/Breakout-v5__p3o_atari_envpool__1.log"
     assert f"FAILED (see {log}): " in proc.stdout
@@ -148,6 +150,33 @@ def test_local_mode_fails_with_status_1_when_a_run_fails(tmp_path):
         ({"SIGNAL_SECONDS": "-5"}, "error: SIGNAL_SECONDS must be a whole number, got '-5'."),
         ({"EXTRA_ARGS": "--learning-rate nan"}, "error: --learning-rate must be a finite number, got nan."),
         ({"GROUP": "../elsewhere"}, "error: --run-name '../elsewhere/Breakout-v5__ppo_atari_envpool__1' must be a"),
+        # set but empty is a mistake, not the default grid
+        ({"SEEDS": ""}, "error: SEEDS is empty."),
+        ({"GAMES": ""}, "error: GAMES is empty."),
+        ({"ALGOS": ""}, "error: ALGOS is empty."),
+        # the same run twice would end in one of them refused by the other's lock
+        ({"ALGOS": "ppo ppo"}, "error: ALGOS names 'ppo' twice."),
+        ({"SEEDS": "1 2 1"}, "error: SEEDS names '1' twice."),
+        ({"GAMES": "Breakout-v5 Breakout-v5"}, "error: GAMES names 'Breakout-v5' twice."),
+        ({"DRY_RUN": "maybe"}, "error: DRY_RUN must be 1 (or true) or 0 (or false), got 'maybe'."),
+        ({"SLURM": "2"}, "error: SLURM must be 1 (or true) or 0 (or false), got '2'."),
+        # EXTRA_ARGS may not change what names a run: two folders named for seeds 1 and 2 would hold seed 7
+        ({"EXTRA_ARGS": "--seed 7"}, "error: EXTRA_ARGS sets --seed (7), which the sweep sets for SEEDS."),
+        (
+            {"EXTRA_ARGS": "--env_id Pong-v5"},
+            "error: EXTRA_ARGS sets --env-id (Pong-v5), which the sweep sets for GAMES.",
+        ),
+        ({"EXTRA_ARGS": "--total-timesteps=256"}, "error: EXTRA_ARGS sets --total-timesteps (256), which the sweep"),
+        ({"EXTRA_ARGS": "--exp-name x"}, "error: EXTRA_ARGS sets --exp-name (x), which the sweep sets for the run"),
+        ({"EXTRA_ARGS": "--run-name a/b"}, "error: EXTRA_ARGS sets --run-name (a/b), which the sweep sets for GROUP."),
+        ({"EXTRA_ARGS": "--no-auto-resume"}, "error: EXTRA_ARGS sets --auto-resume (False), which the sweep sets"),
+        ({"EXTRA_ARGS": "--resume runs/x"}, "error: EXTRA_ARGS sets --resume (runs/x), which the sweep sets"),
+        ({"ALGOS": "p3o", "EXTRA_ARGS": "--ewma-alpha 0.5"}, "error: EXTRA_ARGS sets --ewma-alpha (0.5), which the"),
+        # one sentence where the parser would print a box, and quotes that the runs would not see as the check did
+        ({"EXTRA_ARGS": "--num-envs x"}, "error: EXTRA_ARGS '--num-envs x' holds a flag or value that ppo_atari_en"),
+        ({"EXTRA_ARGS": "--ewma-alpha 0.5"}, "error: EXTRA_ARGS '--ewma-alpha 0.5' holds a flag or value that ppo_"),
+        ({"EXTRA_ARGS": "--exp-name 'a b'"}, "error: EXTRA_ARGS and GROUP are split at spaces and cannot hold quotes"),
+        ({"GROUP": "my group"}, "error: GROUP must be one folder name without spaces, got 'my group'."),
     ],
 )
 @pytest.mark.parametrize("mode", [{}, {"SLURM": "1"}, {"DRY_RUN": "1"}], ids=["local", "slurm", "dry-run"])
@@ -164,3 +193,35 @@ def test_bad_knobs_are_refused_before_anything_starts_or_is_submitted(knobs, sen
 def test_algos_runs_one_script_of_the_grid(tmp_path):
     lines = sweep({"DRY_RUN": "1", "GAMES": "Qbert-v5", "SEEDS": "1 2", "ALGOS": "p3o"}, tmp_path).stdout.splitlines()
     assert len(lines) == 2 and all("p3o_atari_envpool.py" in line for line in lines)
+
+
+def test_dry_run_true_is_a_dry_run(tmp_path):
+    proc = sweep({"DRY_RUN": "true", "GAMES": "Breakout-v5", "SEEDS": "1"}, tmp_path)
+    assert proc.returncode == 0 and len(proc.stdout.splitlines()) == 2 and not (tmp_path / "runs").exists()
+
+
+def test_runs_made_with_other_settings_are_named_not_skipped_or_resumed(tmp_path):
+    """A sweep run again with a changed knob over runs of its GROUP says which run differs, and how, before
+    anything starts: a finished run would otherwise be skipped as done ("nothing to run") for the new settings."""
+    import ppo_atari_envpool as ppo
+
+    env = {"GAMES": "Breakout-v5", "SEEDS": "1", "ALGOS": "ppo", "GROUP": "g", "TOTAL_TIMESTEPS": "128"}
+    env |= {"EXTRA_ARGS": "--num-envs 4 --num-steps 32 --num-minibatches 2 --eval-episodes 0"}
+    run = tmp_path / "runs" / "g" / "Breakout-v5__ppo_atari_envpool__1"
+    run.mkdir(parents=True)
+    made = ppo.Args(env_id="Breakout-v5", seed=1, total_timesteps=128, num_envs=4, num_steps=32, num_minibatches=2)
+    made.run_name, made.auto_resume, made.eval_episodes = "g/Breakout-v5__ppo_atari_envpool__1", True, 0
+    torch.save({"args": vars(made), "finished": True, "iteration": 1}, run / "checkpoint.pt")
+    same = sweep(env | {"DRY_RUN": "1"}, tmp_path)
+    assert same.returncode == 0 and "nothing to run: every run in runs/g has finished" in same.stdout
+    for knobs, was in [
+        ({"TOTAL_TIMESTEPS": "256"}, "--total-timesteps 128 (now 256)"),
+        ({"EXTRA_ARGS": env["EXTRA_ARGS"] + " --learning-rate 2.5e-4"}, "--learning-rate 0.001 (now 0.00025)"),
+    ]:
+        proc = sweep(env | knobs, tmp_path)
+        assert proc.returncode == 1 and proc.stdout == ""
+        assert proc.stderr == (
+            f"error: runs/g/Breakout-v5__ppo_atari_envpool__1 was made with {was}; give this sweep another GROUP,"
+            " or remove that run.\n"
+        )
+    assert sorted(os.listdir(run)) == ["checkpoint.pt"]
