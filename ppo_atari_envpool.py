@@ -203,7 +203,8 @@ def explained_variance(values, returns, valid):
 def main(args: Args, cli: list[str] | None = None) -> dict[str, list[float]]:
     """Train; returns the seconds each iteration spent in the rollout and in the update (with the logging).
     `cli` is the command line `args` were parsed from: a resume parses it again over the checkpoint's arguments."""
-    check_args(args)
+    if not resuming(args):  # a resume's arguments are checked once the checkpoint's are in (read_checkpoint)
+        check_args(args)
     keep_freed_memory()
     run_dir, checkpoint = open_run(args, cli)  # on a resume, args become the checkpoint's
     args.batch_size = int(args.num_envs * args.num_steps)
@@ -421,8 +422,18 @@ def main(args: Args, cli: list[str] | None = None) -> dict[str, list[float]]:
                 sys.exit(128 + stop_signal[0])
 
         save_checkpoint(checkpoint_path, agent, optimizer, args, args.num_iterations)
+        # from here a signal stops the final stage at once, and the checkpoint just written redoes only this stage
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, stop_final_stage)
         try:
-            if args.eval_episodes:
+            if stop_signal:  # it came after the last iteration's check
+                raise Stopped(stop_signal[0])
+            # a redone last stage (--resume after it failed) plays the evaluation only if none was logged yet
+            evaluated = os.path.exists(f"{run_dir}/eval.json")
+            if evaluated:
+                print(f"{run_dir}/eval.json: this run's evaluation was logged before; not played again")
+            if args.eval_episodes and not evaluated:
+                print(f"evaluating: {args.eval_episodes} full games", flush=True)
                 videos = f"{run_dir}/videos" if args.capture_video else None
                 seed = args.seed + 1_000_000
                 report = evaluate(agent, args.env_id, args.eval_episodes, seed, args.eval_greedy, device, videos)
@@ -437,6 +448,9 @@ def main(args: Args, cli: list[str] | None = None) -> dict[str, list[float]]:
             if args.save_model:
                 model_path = f"{run_dir}/{args.exp_name}.cleanrl_model"
                 save(model_path, agent, args, env_id=args.env_id, num_actions=agent.actor.out_features)
+        except Stopped as stop:
+            print(f"stopped by signal {stop.signum} in the final stage; continue with --resume {run_dir}")
+            sys.exit(128 + stop.signum)
         except Exception as e:  # after a whole training: one sentence, and the checkpoint to redo this stage from
             sys.exit(
                 f"error: the evaluation or model saving after training failed ({type(e).__name__}: {e}); the trained"
@@ -554,7 +568,7 @@ def save_checkpoint(path, agent, optimizer, args, iteration, finished=False) -> 
 
 def open_run(args: Args, cli: list[str] | None = None) -> tuple[str, dict | None]:
     """The run folder, held by this process alone until `main` ends, and for a resume its checkpoint."""
-    if args.auto_resume and args.resume is None and os.path.exists(f"runs/{args.run_name}/checkpoint.pt"):
+    if resuming(args) and args.resume is None:
         args.resume = f"runs/{args.run_name}"
     path = None
     if args.resume is None:
@@ -570,6 +584,12 @@ def open_run(args: Args, cli: list[str] | None = None) -> tuple[str, dict | None
     except SystemExit:
         release(run_dir)
         raise
+
+
+def resuming(args: Args) -> bool:
+    """Whether this call continues a run: --resume, or --auto-resume of a run folder that holds a checkpoint."""
+    auto = args.auto_resume and args.run_name and os.path.exists(f"runs/{args.run_name}/checkpoint.pt")
+    return args.resume is not None or bool(auto)
 
 
 def start_clean(run_dir: str) -> None:
@@ -733,12 +753,27 @@ def evaluate(agent, env_id, episodes, seed, greedy, device, video_dir=None) -> d
 
 
 def write_evaluation(report: dict, run_dir: str, writer) -> None:
-    """Each game's return under `eval/episodic_return` (step = game index), and `eval.json`."""
+    """Each game's return under `eval/episodic_return` (step = game index), then `eval.json`, written whole (a
+    temporary file, renamed): it is the record that the evaluation was logged, which a redone last stage reads."""
     for game, ret in enumerate(report["returns"]):
         writer.add_scalar("eval/episodic_return", ret, game)
     writer.flush()
-    with open(os.path.join(run_dir, "eval.json"), "w") as f:
+    path = os.path.join(run_dir, "eval.json")
+    with open(f"{path}.tmp", "w") as f:
         json.dump(report, f, indent=2)
+    os.replace(f"{path}.tmp", path)
+
+
+class Stopped(BaseException):
+    """A signal in the final stage (not an Exception: the stage's error handling must not take it for a failure)."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def stop_final_stage(signum, frame):
+    raise Stopped(signum)
 
 
 def keep_freed_memory() -> None:

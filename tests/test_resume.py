@@ -452,3 +452,92 @@ def test_a_full_disk_stops_the_run_with_a_sentence_and_keeps_its_checkpoint(tmp_
         assert saved["iteration"] == 1 and not (tmp_path / "runs" / "full" / "checkpoint.pt.tmp").exists()
     finally:
         subprocess.run(["umount", str(tmp_path / "runs")], check=True)
+
+
+def test_a_resume_may_restate_the_runs_own_values(tmp_path):
+    """`--resume runs/x --total-timesteps 256` on a run of 256 steps is that run, not a refusal for the default
+    sizes the other flags would have; another value is refused by name."""
+    proc = run("ppo", tmp_path, "--run-name", "r", "--total-timesteps", str(2 * BATCH))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    script = os.path.join(ROOT, "ppo_atari_envpool.py")
+    for restated in (["--total-timesteps", str(2 * BATCH)], ["--total-timesteps", str(2 * BATCH), "--num-envs", "4"]):
+        again = subprocess.run(
+            [sys.executable, script, "--resume", "runs/r", *restated], cwd=tmp_path, capture_output=True, text=True
+        )
+        assert again.returncode == 0 and again.stderr == "", again.stderr
+        assert f"runs/r already finished ({2 * BATCH} steps); nothing to do." in again.stdout
+    other = subprocess.run(
+        [sys.executable, script, "--resume", "runs/r", "--total-timesteps", str(4 * BATCH)],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+    )
+    assert other.returncode == 1 and other.stderr == (
+        f"error: --resume runs/r/checkpoint.pt was started with --total-timesteps {2 * BATCH} (now {4 * BATCH});"
+        " resume it with the same arguments.\n"
+    )
+
+
+def eval_points(run_dir) -> list[tuple[int, float]]:
+    return scalars(str(run_dir)).get("eval/episodic_return", [])
+
+
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_a_redone_last_stage_logs_its_evaluation_once(algo, tmp_path, monkeypatch):
+    """The README's way out of a failed final stage (make room, then --resume) must not log the evaluation a
+    second time: the model file fails to be written after the evaluation was logged; the resume writes the
+    model and the finished checkpoint, and the event file and eval.json hold one evaluation each."""
+    module = SCRIPTS[algo]
+    save = module.save
+
+    def full_disk_at_the_model(path, *args, **kwargs):
+        if path.endswith(".cleanrl_model"):
+            sys.exit(f"error: writing {path} failed (No space left on device)")
+        return save(path, *args, **kwargs)
+
+    monkeypatch.setattr(module, "save", full_disk_at_the_model)
+    monkeypatch.chdir(tmp_path)
+    args = args_for(module, run_name="m", eval_episodes=2, save_model=True, cuda=False, total_timesteps=2 * BATCH)
+    with pytest.raises(SystemExit, match="No space left on device"):
+        module.main(args)
+    run_dir = tmp_path / "runs" / "m"
+    first = eval_points(run_dir)
+    assert [step for step, _ in first] == [0, 1] and (run_dir / "eval.json").is_file()
+    monkeypatch.undo()
+    script = os.path.join(ROOT, f"{algo}_atari_envpool.py")
+    proc = subprocess.run([sys.executable, script, "--resume", "runs/m"], cwd=tmp_path, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "runs/m/eval.json: this run's evaluation was logged before; not played again" in proc.stdout
+    assert "eval: " not in proc.stdout and (run_dir / f"{algo}_atari_envpool.cleanrl_model").is_file()
+    assert eval_points(run_dir) == first  # once, as eval.json
+    assert json.loads((run_dir / "eval.json").read_text())["returns"] == [v for _, v in first]
+    assert torch.load(run_dir / "checkpoint.pt", weights_only=True)["finished"]
+
+
+def test_a_signal_in_the_final_evaluation_stops_the_run_and_the_resume_redoes_only_that_stage(tmp_path):
+    proc = subprocess.Popen(
+        command("p3o", "--run-name", "f", "--eval-episodes", "8"),
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    lines = []
+    for line in proc.stdout:
+        lines.append(line)
+        if line.startswith("evaluating: 8 full games"):  # 8 full games of an untrained agent: seconds
+            proc.send_signal(signal.SIGTERM)
+            break
+    out, err = proc.communicate(timeout=300)
+    out = "".join(lines) + out
+    assert proc.returncode == 128 + signal.SIGTERM, (out, err)
+    assert "stopped by signal 15 in the final stage; continue with --resume runs/f" in out and "Traceback" not in err
+    run_dir = tmp_path / "runs" / "f"
+    saved = torch.load(run_dir / "checkpoint.pt", weights_only=True)
+    assert saved["iteration"] == ITERATIONS and not saved["finished"]
+    assert not (run_dir / "eval.json").exists() and eval_points(run_dir) == []
+    resumed = run("p3o", tmp_path, "--run-name", "f", "--eval-episodes", "8", "--auto-resume")
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert f"iteration {ITERATIONS}/" not in resumed.stdout and "eval: 8 games, return " in resumed.stdout
+    assert [step for step, _ in eval_points(run_dir)] == list(range(8))
+    assert torch.load(run_dir / "checkpoint.pt", weights_only=True)["finished"]
