@@ -651,12 +651,41 @@ def start_clean(run_dir: str) -> None:
     if os.path.exists(f"{run_dir}/eval.json"):
         sys.exit(f"error: {run_dir} holds an evaluation but no checkpoint; give this run another --run-name.")
     stale = glob.glob(f"{run_dir}/events.out.tfevents.*") + glob.glob(f"{run_dir}/checkpoint.pt.tmp")
+    if finished_logs([path for path in stale if ".tfevents." in path]):  # never delete what a finished run wrote
+        sys.exit(
+            f"error: {run_dir} holds the logs of a finished run but no checkpoint; give this run another --run-name."
+        )
     for path in stale:
         os.remove(path)
     if stale:
         print(
             f"{run_dir} held no checkpoint: removed what an earlier start left ({len(stale)} file(s)); starting afresh"
         )
+
+
+def finished_logs(paths: list[str]) -> bool:
+    """Whether event files hold a finished run (its checkpoint deleted): an evaluation, or the last iteration
+    by the sizes it logged with its hyperparameters. A start killed before its first checkpoint has neither."""
+    from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
+
+    sizes, steps = {}, set()
+    for path in paths:
+        try:
+            for event in EventFileLoader(path).Load():
+                for value in event.summary.value:
+                    if value.tag.startswith("eval/"):
+                        return True
+                    if value.tag == "hyperparameters/text_summary":
+                        rows = value.tensor.string_val[0].decode().splitlines()
+                        sizes |= dict(row.strip("|").split("|", 1) for row in rows if row.count("|") == 3)
+                    elif value.tag == "charts/SPS":
+                        steps.add(event.step)
+        except Exception:  # a file cut short: what it held up to there counts
+            continue
+    try:
+        return int(sizes["num_iterations"]) * int(sizes["batch_size"]) in steps
+    except (KeyError, ValueError):
+        return False
 
 
 def read_checkpoint(path: str, args: Args, cli: list[str] | None) -> dict:

@@ -541,3 +541,19 @@ def test_a_signal_in_the_final_evaluation_stops_the_run_and_the_resume_redoes_on
     assert f"iteration {ITERATIONS}/" not in resumed.stdout and "eval: 8 games, return " in resumed.stdout
     assert [step for step, _ in eval_points(run_dir)] == list(range(8))
     assert torch.load(run_dir / "checkpoint.pt", weights_only=True)["finished"]
+
+
+def test_a_finished_run_without_its_checkpoint_keeps_its_logs(tmp_path):
+    """A finished run with --eval-episodes 0 (as every regime run is) whose checkpoint was deleted is not a start
+    killed before its first checkpoint: --auto-resume refuses in one sentence and deletes nothing."""
+    proc = run("ppo", tmp_path, "--run-name", "done", "--total-timesteps", str(2 * BATCH), "--checkpoint-every", "0")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    run_dir = tmp_path / "runs" / "done"
+    (run_dir / "checkpoint.pt").unlink()
+    files = {p.name: p.read_bytes() for p in run_dir.glob("events.out.tfevents.*")}
+    again = run("ppo", tmp_path, "--run-name", "done", "--total-timesteps", str(2 * BATCH), "--auto-resume")
+    assert again.returncode == 1 and again.stderr == (
+        "error: runs/done holds the logs of a finished run but no checkpoint; give this run another --run-name.\n"
+    )
+    assert {p.name: p.read_bytes() for p in run_dir.glob("events.out.tfevents.*")} == files and files
+    assert "iteration 1/" not in again.stdout
