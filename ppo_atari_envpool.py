@@ -494,6 +494,9 @@ def check_args(args: Args) -> None:
             or (n == "exp_name" and len(parts) > 1)
         ):
             bad.append(f"{flag[n]} {a[n]!r} must be a plain relative name, so that the run stays under runs/.")
+    # the model file is written after training: a name the file system cannot take must fail before it
+    if args.exp_name and len(f"{args.exp_name}.cleanrl_model.tmp".encode()) > 255:
+        bad.append(f"--exp-name is {len(args.exp_name.encode())} bytes long, too long for the model file's name.")
     if args.auto_resume and not args.run_name:
         bad.append("--auto-resume needs --run-name, the run folder it continues.")
     if args.capture_video and not args.eval_episodes:
@@ -505,6 +508,12 @@ def check_args(args: Args) -> None:
     if not bad and batch % args.num_minibatches:
         bad.append(
             f"the batch (--num-envs * --num-steps = {batch}) does not divide into {args.num_minibatches} minibatches."
+        )
+    memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    if not bad and batch * 4 * 84 * 84 > memory:  # the rollout's uint8 frames, its largest buffer
+        bad.append(
+            f"the rollout's frames (--num-envs * --num-steps = {batch} x 4 x 84 x 84 bytes, {batch * 28224 / 2**30:.1f}"
+            f" GiB) would not fit this machine's {memory / 2**30:.1f} GiB of memory."
         )
     if not bad and args.total_timesteps < batch:
         bad.append(f"--total-timesteps {args.total_timesteps} is less than one batch ({batch}): no update would run.")

@@ -70,6 +70,9 @@ CASES = [
     ({"run_name": ""}, f"--run-name '' {UNDER_RUNS}"),
     ({"exp_name": "group/p3o"}, f"--exp-name 'group/p3o' {UNDER_RUNS}"),
     ({"exp_name": ".."}, f"--exp-name '..' {UNDER_RUNS}"),
+    # settings that would only fail after training, when the model file is written, or in the first allocation
+    ({"exp_name": "p" * 240}, "--exp-name is 240 bytes long, too long for the model file's name."),
+    ({"num_steps": 10**9}, "the rollout's frames (--num-envs * --num-steps = 256000000000 x 4 x 84 x 84 bytes, "),
 ]
 P3O_CASES = [
     ({"ewma_alpha": 0.0}, "--ewma-alpha must lie in (0, 1], got 0.0."),
