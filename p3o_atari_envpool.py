@@ -421,15 +421,18 @@ def main(args: Args, cli: list[str] | None = None) -> dict[str, list[float]]:
                 if args.target_kl is not None and approx_kl.item() > args.target_kl:
                     break
 
-            if not finite.item():  # the weights are no longer finite: stop before a checkpoint can take them
+            with torch.no_grad():  # weights can blow up and stay finite: the agent must still act on its next states
+                hidden = agent.hidden(next_obs)
+                finite &= torch.isfinite(agent.actor(hidden)).all() & torch.isfinite(agent.critic(hidden)).all()
+            if not finite.item():  # stop before a checkpoint can take weights the agent cannot act with
                 kept = (
-                    f"{checkpoint_path} keeps the last finite weights"
+                    f"{checkpoint_path} keeps the last weights it could act with"
                     if os.path.exists(checkpoint_path)
                     else "nothing was saved"
                 )
                 sys.exit(
-                    f"error: the loss became non-finite (nan or inf) in iteration {iteration}, so the run stopped and"
-                    f" {kept} (a lower --learning-rate or --max-grad-norm may help)."
+                    f"error: the loss or the policy became non-finite (nan or inf) in iteration {iteration}, so the run"
+                    f" stopped and {kept} (a lower --learning-rate or --max-grad-norm may help)."
                 )
 
             # one host transfer for all of this iteration's statistics

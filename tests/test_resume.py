@@ -360,8 +360,9 @@ def test_a_non_finite_loss_stops_the_run_and_keeps_the_last_finite_checkpoint(al
     with pytest.raises(SystemExit) as excinfo:
         module.main(args_for(module, run_name="nan", checkpoint_every=1, cuda=False))
     assert excinfo.value.code == (
-        "error: the loss became non-finite (nan or inf) in iteration 3, so the run stopped and runs/nan/checkpoint.pt"
-        " keeps the last finite weights (a lower --learning-rate or --max-grad-norm may help)."
+        "error: the loss or the policy became non-finite (nan or inf) in iteration 3, so the run stopped and"
+        " runs/nan/checkpoint.pt keeps the last weights it could act with (a lower --learning-rate or"
+        " --max-grad-norm may help)."
     )
     saved = torch.load(tmp_path / "runs" / "nan" / "checkpoint.pt", weights_only=True)
     assert saved["iteration"] == 2 and not saved["finished"]
@@ -557,3 +558,42 @@ def test_a_finished_run_without_its_checkpoint_keeps_its_logs(tmp_path):
     )
     assert {p.name: p.read_bytes() for p in run_dir.glob("events.out.tfevents.*")} == files and files
     assert "iteration 1/" not in again.stdout
+
+
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_weights_blown_up_without_a_non_finite_loss_stop_the_run_before_a_checkpoint_takes_them(
+    algo, tmp_path, monkeypatch
+):
+    """The last update of iteration 3 scales the weights by 1e20: still finite, and every loss was, but the network
+    now overflows, so the next rollout could not sample. The run stops there with one sentence, and its
+    checkpoint is iteration 2's, which plays."""
+    module = SCRIPTS[algo]
+    steps, step = [], torch.optim.Adam.step
+
+    def blowing_up(self, *args, **kwargs):
+        out = step(self, *args, **kwargs)
+        steps.append(1)
+        if len(steps) == 3 * UPDATES:
+            with torch.no_grad():
+                for group in self.param_groups:
+                    for w in group["params"]:
+                        w.mul_(1e20)
+        return out
+
+    monkeypatch.setattr(torch.optim.Adam, "step", blowing_up)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as excinfo:
+        module.main(args_for(module, run_name="big", checkpoint_every=1, cuda=False))
+    assert excinfo.value.code == (
+        "error: the loss or the policy became non-finite (nan or inf) in iteration 3, so the run stopped and"
+        " runs/big/checkpoint.pt keeps the last weights it could act with (a lower --learning-rate or"
+        " --max-grad-norm may help)."
+    )
+    monkeypatch.undo()
+    saved = torch.load(tmp_path / "runs" / "big" / "checkpoint.pt", weights_only=True)
+    assert saved["iteration"] == 2 and not saved["finished"]
+    agent = module.Agent(4)
+    agent.load_state_dict(saved["model_state_dict"])
+    with torch.no_grad():
+        logits = agent.actor(agent.hidden(torch.randint(0, 256, (8, 4, 84, 84), dtype=torch.uint8)))
+    assert torch.isfinite(logits).all()
