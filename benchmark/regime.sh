@@ -42,10 +42,17 @@ declare -A FLAGS=(
 )
 ORDER="cleanrl cleanrl_lr cleanrl_noanneal cleanrl_epochs cleanrl_steps cleanrl_envs
        thesis thesis_lr thesis_anneal thesis_epochs thesis_steps thesis_envs"
-CONFIGS=${CONFIGS:-$ORDER}
-SEEDS=${SEEDS:-"1 2"}
+# unset: the default; set but empty: refused (not taken as the default)
+CONFIGS=${CONFIGS-$ORDER}
+SEEDS=${SEEDS-"1 2"}
 TOTAL_TIMESTEPS=${TOTAL_TIMESTEPS:-250000}
 OUT=${OUT:-${base}benchmark/results/regime}
+for knob in CONFIGS SEEDS; do
+    if [ -z "${!knob// /}" ]; then
+        echo "error: $knob is empty." >&2
+        exit 1
+    fi
+done
 
 for config in $CONFIGS; do
     if [ -z "${FLAGS[$config]+set}" ]; then

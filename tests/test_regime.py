@@ -81,3 +81,10 @@ def test_an_unknown_configuration_is_one_sentence_before_anything_runs(tmp_path)
     assert proc.stderr.startswith("error: unknown configuration 'thesis_lrr'; known: cleanrl cleanrl_lr ")
     assert len(proc.stderr.strip().splitlines()) == 1
     assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("knob", ["CONFIGS", "SEEDS"])
+def test_an_empty_knob_is_refused_not_taken_as_the_default(knob, tmp_path):
+    proc = regime(tmp_path, tmp_path / "out", **{knob: ""})
+    assert proc.returncode == 1 and proc.stdout == "" and proc.stderr == f"error: {knob} is empty.\n"
+    assert os.listdir(tmp_path) == []

@@ -209,3 +209,9 @@ def test_track_without_a_wandb_login_is_one_sentence_before_training(tmp_path):
         "); log in with `wandb login`, or set WANDB_MODE=offline to log locally and `wandb sync` later."
     )
     assert "Traceback" not in proc.stderr and "iteration 1/" not in proc.stdout
+
+
+def test_an_offline_runs_wandb_folder_is_git_ignored():
+    """`WANDB_MODE=offline` leaves ./wandb/ beside the scripts: git must not offer it for a commit."""
+    proc = subprocess.run(["git", "check-ignore", "-q", "wandb/offline-run-1/run-1.wandb"], cwd=ROOT)
+    assert proc.returncode == 0
