@@ -36,9 +36,10 @@ tables() {
     $PYTHON "${base}benchmark/results.py" "$out/runs" --out "$out" "${readme[@]}"
     # the training return (last 100 games, and per fifth of training) and P3O's mean beta per fifth of training
     $PYTHON "${base}benchmark/results.py" "$out/runs" --out "$out" --tag charts/episodic_return --last 100 \
-        --table-name train_last100 --window-steps "$((steps / 5))" --no-figures --no-hours
+        --table-name train_last100 --window-steps "$((steps / 5))" --no-figures
     $PYTHON "${base}benchmark/results.py" "$out/runs" --out "$out" --tag p3o/beta_mean --table-name beta \
-        --window-steps "$((steps / 5))" --no-figures --no-hours
+        --window-steps "$((steps / 5))" --no-figures
+    $PYTHON "${base}benchmark/hours.py" "$out/runs" --out "$out"
     echo "tables: $out/table.md (10-game evaluation), $out/train_last100.md (last 100 training games),"
     echo "        $out/train_last100_windows.md (training return per fifth of training), $out/beta_windows.md"
     echo "figures: $out/*.png; hours of training: $out/hours.md; runs: $out/runs/"

@@ -70,6 +70,7 @@ tables() {
         --tag p3o/beta_mean --table-name beta_mean --window-steps 50000
     $PYTHON "${base}benchmark/results.py" "$OUT/runs" --out "$OUT" --group-regex "$regex" --no-figures \
         --tag p3o/beta --above 0.5 --table-name beta_above_half --window-steps 50000
+    $PYTHON "${base}benchmark/hours.py" "$OUT/runs" --out "$OUT" --group-regex "$regex"
 }
 
 mkdir -p "$OUT/runs"

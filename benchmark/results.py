@@ -5,25 +5,25 @@ comparison across games (interquartile mean of human-normalised scores, rliable'
     uv run python benchmark/results.py runs/ --out results/ --tag charts/episodic_return --last 100 \
         --table-name train_last100 --no-figures
 
-Runs are folders holding `events.out.tfevents.*` files, grouped by the env id and exp name each run logged
-with its hyperparameters, except that a folder named `{env_id}__{exp_name}__...` with other ones is grouped by
-its name, with a warning (runs that logged none: by that folder name; `--group-regex` with named groups `env`
-and `algo`, searched in the folder name, overrides all of these). Runs with unreadable files,
-no events or a missing tag are reported by name and skipped.
+Runs are folders holding `events.out.tfevents.*` files, read into one long table (run, game, algorithm, tag,
+step, value, wall time) and grouped by their folder's name, `{env_id}__{exp_name}[__{seed}[__{time}]]` as the
+training scripts name them (a warning when the run logged another env id or exp name), or by `--group-regex`
+with named groups `env` and `algo`. Runs with unreadable files, no events, another name or a missing tag are
+reported by name and skipped. How long the runs took: benchmark/hours.py.
 """
 
-import csv
 import glob
 import os
 import re
 import struct
 import sys
-import time
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
+import pandas as pd
 import tyro
+from scipy import stats
 
 # Per-game random and human reference scores for human-normalised scores, (score - random) / (human -
 # random), as tabulated for the Atari benchmark (Mnih et al. 2015; Badia et al. 2020, Agent57).
@@ -63,6 +63,7 @@ FIGURES = {  # file suffix: (tag, y label, title)
     "value_loss": ("losses/value_loss", "value loss", "value loss"),
     "beta_mean": ("p3o/beta_mean", "mean β", "P3O mean β"),
 }
+COLUMNS = ["run", "env", "algo", "tag", "step", "value", "wall_time"]
 
 
 @dataclass
@@ -84,7 +85,7 @@ class Args:
     """also a table of the tag over training, OUT/TABLE_NAME_windows.md and .csv: per run the mean of its values
     in each window [k·W, (k+1)·W) of W env steps, then mean ± s.e. over runs (0: no such table)"""
     group_regex: str | None = None
-    """regex with named groups `env` and `algo`, searched in each run folder's name (instead of the logged ids)"""
+    """regex with named groups `env` and `algo`, searched in each run folder's name (instead of the name's parts)"""
     figures: bool = True
     """write the figures"""
     grid_points: int = 200
@@ -100,29 +101,15 @@ class Args:
     readme: str | None = None
     """a Markdown file (the README) whose block between the two marker lines (README_BEGIN, README_END) is
     replaced by the results table (with the per-game tests and the thesis's table 5.1) and the across-game line"""
-    hours: bool = True
-    """also write OUT/hours.md and .csv: how long each training run took, from the times of its per-iteration
-    `charts/SPS` points and its event files' names"""
-
-
-@dataclass
-class Run:
-    path: str
-    env: str
-    algo: str
-    scalars: dict  # tag -> (steps, values) as numpy arrays
-    iteration_times: np.ndarray | None = None  # wall times (s) of the run's `charts/SPS` points, one per iteration
-    process_starts: tuple[float, ...] = ()  # the start times in its event files' names, one file per process
 
 
 def logged_identity(acc) -> dict:
-    """env_id, exp_name and seed from the `hyperparameters` text the training scripts log (empty if absent)."""
+    """env_id and exp_name from the `hyperparameters` text the training scripts log (empty if absent)."""
     if "hyperparameters/text_summary" not in acc.Tags().get("tensors", []):
         return {}
     text = acc.Tensors("hyperparameters/text_summary")[0].tensor_proto.string_val[0].decode()
-    rows = [line.strip("|").split("|", 1) for line in text.splitlines() if line.count("|") >= 3]
-    table = {key: value for key, value in rows}
-    return {key: table[key] for key in ("env_id", "exp_name", "seed") if key in table}
+    table = dict(line.strip("|").split("|", 1) for line in text.splitlines() if line.count("|") >= 3)
+    return {key: table[key] for key in ("env_id", "exp_name") if key in table}
 
 
 def share_above(histogram, threshold: float) -> float:
@@ -140,15 +127,25 @@ def share_above(histogram, threshold: float) -> float:
     return float((counts * above).sum() / histogram.num)
 
 
-def find_runs(roots, group_regex=None, above=None) -> tuple[list[Run], list[str]]:
-    """Every folder under the roots with an event file, read with TensorBoard's own reader. A run's game and
-    algorithm are the env id and exp name it logged with its hyperparameters, unless its folder is named
-    `{env_id}__{exp_name}__...` with others (then the folder's, with a warning); for runs that logged none,
-    that folder name (--group-regex overrides all of these). With `above`,
-    each histogram tag becomes a scalar series: the share of its values above that number."""
+def name_groups(name: str, pattern) -> tuple[str, str] | None:
+    """(env, algo) from a run folder's name: --group-regex's groups, or `{env_id}__{exp_name}` less the seed and
+    start time that follow (an exp name may hold `__` itself)."""
+    if pattern:
+        match = pattern.search(name)
+        return (match.group("env"), match.group("algo")) if match else None
+    parts = name.split("__")
+    while len(parts) > 2 and parts[-1].isdigit():
+        parts.pop()
+    return (parts[0], "__".join(parts[1:])) if len(parts) >= 2 else None
+
+
+def find_runs(roots, group_regex=None, above=None) -> tuple[pd.DataFrame, list[str]]:
+    """Every folder under the roots with an event file, read with TensorBoard's own reader into one long table
+    (COLUMNS), each tag's points in step order. With `above`, each histogram tag becomes a scalar series: the
+    share of its values above that number."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    runs, problems = [], []
+    tables, problems = [], []
     folders = {}  # one run per folder, however it was reached (`runs/x` and `./runs/x`, or a root inside another)
     for root in roots:
         if not os.path.isdir(root):
@@ -160,68 +157,46 @@ def find_runs(roots, group_regex=None, above=None) -> tuple[list[Run], list[str]
     for folder in sorted(folders.values()):
         name = os.path.basename(os.path.normpath(folder))
         try:
-            acc = EventAccumulator(
-                folder, size_guidance={"scalars": 0, "tensors": 1, "histograms": 0 if above is not None else 1}
-            )
+            guidance = {"scalars": 0, "tensors": 1, "histograms": 0 if above is not None else 1}
+            acc = EventAccumulator(folder, size_guidance=guidance)
             acc.Reload()
-            identity = logged_identity(acc)
-            scalars, iteration_times = {}, None
-            for tag in acc.Tags()["scalars"]:
-                events = acc.Scalars(tag)
-                if tag == "charts/SPS":
-                    iteration_times = np.sort(np.array([e.wall_time for e in events], dtype=np.float64))
-                steps = np.array([e.step for e in events], dtype=np.float64)
-                values = np.array([e.value for e in events], dtype=np.float64)
-                order = np.argsort(steps, kind="stable")
-                scalars[tag] = (steps[order], values[order])
+            points = {tag: [(e.step, e.value, e.wall_time) for e in acc.Scalars(tag)] for tag in acc.Tags()["scalars"]}
             for tag in acc.Tags()["histograms"] if above is not None else []:
-                events = acc.Histograms(tag)
-                steps = np.array([e.step for e in events], dtype=np.float64)
-                values = np.array([share_above(e.histogram_value, above) for e in events], dtype=np.float64)
-                order = np.argsort(steps, kind="stable")
-                scalars[tag] = (steps[order], values[order])
+                points[tag] = [
+                    (e.step, share_above(e.histogram_value, above), e.wall_time) for e in acc.Histograms(tag)
+                ]
         except Exception as e:  # a truncated or foreign file: say which, go on
             problems.append(f"{folder}: unreadable event file ({type(e).__name__}: {e}), skipped")
             continue
-        if pattern:
-            match = pattern.search(name)
-            if not match:
-                problems.append(f"{folder}: name does not match --group-regex, skipped")
-                continue
-            env, algo = match.group("env"), match.group("algo")
-        elif "env_id" in identity and "exp_name" in identity:
-            env, algo = identity["env_id"], identity["exp_name"]
-            parts = name.split("__")
-            # an exp name may hold `__` itself: the folder agrees when it starts with the logged env id and exp name
-            agrees = name == f"{env}__{algo}" or name.startswith(f"{env}__{algo}__")
-            if len(parts) >= 3 and re.fullmatch(r"[A-Za-z0-9]+-v\d+", parts[0]) and not agrees:
-                # the folder name is what TensorBoard shows and what the user can rename: it decides, loudly
-                print(
-                    f"warning: {folder}: the folder name says {parts[0]} / {parts[1]} but the run logged {env} /"
-                    f" {algo}; grouped by the folder name",
-                    file=sys.stderr,
-                )
-                env, algo = parts[0], parts[1]
-        elif len(name.split("__")) >= 2:
-            env, algo = name.split("__")[:2]
-        else:
+        groups = name_groups(name, pattern)
+        if groups is None:
             problems.append(
-                f"{folder}: no logged hyperparameters and a name not {{env_id}}__{{exp_name}}__..., skipped"
+                f"{folder}: name does not match --group-regex, skipped"
+                if pattern
+                else f"{folder}: a name not {{env_id}}__{{exp_name}}__... (name it so, or use --group-regex), skipped"
             )
             continue
-        if not scalars:
+        logged = logged_identity(acc)
+        if not pattern and len(logged) == 2 and groups != (logged["env_id"], logged["exp_name"]):
+            # the folder name is what TensorBoard shows and what the user can rename: it decides, loudly
+            print(
+                f"warning: {folder}: the folder name says {groups[0]} / {groups[1]} but the run logged"
+                f" {logged['env_id']} / {logged['exp_name']}; grouped by the folder name",
+                file=sys.stderr,
+            )
+        if not points:
             problems.append(f"{folder}: no scalar events, skipped")
             continue
-        starts = []
+        for tag, rows in points.items():
+            step, value, wall_time = np.array(rows, dtype=np.float64).T
+            order = np.argsort(step, kind="stable")
+            table = {"step": step[order], "value": value[order], "wall_time": wall_time[order]}
+            tables.append(pd.DataFrame({"run": folder, "env": groups[0], "algo": groups[1], "tag": tag} | table))
         for file in sorted(glob.glob(os.path.join(folder, "events.out.tfevents.*"))):
             damage = truncation(file)
             if damage:
                 print(f"warning: {file}: {damage}; the complete records before it are used", file=sys.stderr)
-            start = re.match(r"events\.out\.tfevents\.(\d+)", os.path.basename(file))
-            if start and written_by_a_training_process(file):
-                starts.append(float(start[1]))
-        runs.append(Run(folder, env, algo, scalars, iteration_times, tuple(starts)))
-    return runs, problems
+    return pd.concat(tables, ignore_index=True) if tables else pd.DataFrame(columns=COLUMNS), problems
 
 
 def truncation(path: str) -> str | None:
@@ -243,51 +218,26 @@ def truncation(path: str) -> str | None:
     return None
 
 
-def written_by_a_training_process(path: str) -> bool:
-    """Whether an event file is one process's part of a training run: the first start's file opens with the
-    logged hyperparameters, each resume's with TensorBoard's session start (its purge step). Any other event
-    file in the folder (a copy, another tool's) is not a start or a resume of the run."""
-    from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
-    from tensorboard.compat.proto.event_pb2 import SessionLog
-
-    try:
-        for k, event in enumerate(EventFileLoader(path).Load()):
-            if event.HasField("session_log") and event.session_log.status == SessionLog.START:
-                return True
-            if any(value.tag.startswith("hyperparameters") for value in event.summary.value):
-                return True
-            if k >= 4:  # both come right after the file's version record
-                return False
-    except Exception:  # unreadable from the start
-        return False
-    return False
+def per_run(frame: pd.DataFrame, tag: str, last: int) -> pd.Series:
+    """(env, algo, run) -> the run's statistic of the tag: the mean of its last `last` values (0: of all)."""
+    values = frame[frame.tag == tag].groupby(["env", "algo", "run"])["value"]
+    return values.agg(lambda v: float(np.mean(v.to_numpy()[-last:] if last else v.to_numpy())))
 
 
-def run_statistic(run: Run, tag: str, last: int) -> float | None:
-    if tag not in run.scalars or len(run.scalars[tag][1]) == 0:
-        return None
-    values = run.scalars[tag][1]
-    return float(values[-last:].mean() if last else values.mean())
-
-
-def summarise(runs, tag, last) -> tuple[dict, list[str]]:
-    """(env, algo) -> (mean, standard error, n) of the per-run statistic; the standard error uses the
-    population standard deviation, std / sqrt(n), as the thesis's table 5.1."""
-    per_group, problems = {}, []
-    for run in runs:
-        stat = run_statistic(run, tag, last)
-        if stat is None:
-            problems.append(f"{run.path}: no '{tag}' values, left out of the table")
-            continue
-        per_group.setdefault((run.env, run.algo), []).append(stat)
-    return {key: mean_se(stats) for key, stats in sorted(per_group.items())}, problems
-
-
-def mean_se(stats) -> tuple[float, float, int]:
+def mean_se(x) -> tuple[float, float, int]:
     """Mean, standard error with the population standard deviation (std / sqrt(n), as the thesis's
     table 5.1) and n of per-run statistics."""
-    x = np.array(stats)
+    x = np.asarray(x, dtype=np.float64)  # not scipy.stats.sem(ddof=0): for one run it warns and gives nan, not 0
     return float(x.mean()), float(x.std() / np.sqrt(len(x))), len(x)
+
+
+def per_game_scores(statistics: pd.Series, algos) -> dict:
+    """env -> algo -> the per-run statistics (in run order), for the algorithms named."""
+    per = {}
+    for (env, algo), x in statistics.groupby(level=["env", "algo"]):
+        if algo in algos:
+            per.setdefault(env, {})[algo] = list(x.to_numpy())
+    return per
 
 
 def number(x: float) -> str:
@@ -299,55 +249,52 @@ def mean_se_text(mean: float, se: float, n: int) -> str:
     return f"{number(mean)} ± {number(se)}" if n > 1 else number(mean)
 
 
+def markdown(header: list[str], rows: list[list[str]]) -> list[str]:
+    """A Markdown table's lines."""
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)] + ["| " + " | ".join(r) + " |" for r in rows]
+
+
+def write(out: str, name: str, text: str, csv_rows: list[dict] | None = None) -> str:
+    """OUT/NAME.md (and with `csv_rows` OUT/NAME.csv, comma-separated, CRLF lines as Python's csv module writes)."""
+    with open(os.path.join(out, f"{name}.md"), "w") as f:
+        f.write(text)
+    if csv_rows is not None:
+        pd.DataFrame(csv_rows).to_csv(os.path.join(out, f"{name}.csv"), index=False, lineterminator="\r\n")
+    return text
+
+
 def write_table(table, out, name, tag, last) -> str:
     envs = sorted({env for env, _ in table})
     algos = sorted({algo for _, algo in table})
     statistic = f"mean of the last {last} values" if last else "mean of all values"
+    cell = lambda key: f"{mean_se_text(*table[key])} (n={table[key][2]})" if key in table else "–"  # noqa: E731
     lines = [
         f"`{tag}`, per run the {statistic}; mean ± standard error (population std / √n) over n runs (the mean"
         " alone for one run).",
         "",
-        "| game | " + " | ".join(algos) + " |",
-        "|---|" + "---|" * len(algos),
+        *markdown(["game", *algos], [[env, *(cell((env, algo)) for algo in algos)] for env in envs]),
     ]
-    for env in envs:
-        cells = []
-        for algo in algos:
-            if (env, algo) in table:
-                mean, se, n = table[env, algo]
-                cells.append(f"{mean_se_text(mean, se, n)} (n={n})")
-            else:
-                cells.append("–")
-        lines.append(f"| {env} | " + " | ".join(cells) + " |")
-    markdown = "\n".join(lines) + "\n"
-    with open(os.path.join(out, f"{name}.md"), "w") as f:
-        f.write(markdown)
-    with open(os.path.join(out, f"{name}.csv"), "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(["game", "algorithm", "tag", "last", "n", "mean", "std_err"])
-        for (env, algo), (mean, se, n) in table.items():
-            writer.writerow([env, algo, tag, last, n, mean, se if n > 1 else ""])
-    return markdown
+    rows = [
+        {"game": env, "algorithm": algo, "tag": tag, "last": last, "n": n, "mean": mean, "std_err": se if n > 1 else ""}
+        for (env, algo), (mean, se, n) in table.items()
+    ]
+    return write(out, name, "\n".join(lines) + "\n", rows)
 
 
-def summarise_windows(runs, tag, window) -> dict:
+def summarise_windows(frame, tag, window) -> dict:
     """(env, algo) -> per window k of steps [k·window, (k+1)·window): `mean_se` over the runs with values
     there of each run's mean in the window, and the number of values in all; None for a window no run has
     values in."""
-    per_group = {}
-    for run in runs:
-        if tag in run.scalars and len(run.scalars[tag][0]):
-            steps, values = run.scalars[tag]
-            index = (steps // window).astype(int)
-            means = {k: (float(values[index == k].mean()), int((index == k).sum())) for k in np.unique(index)}
-            per_group.setdefault((run.env, run.algo), []).append(means)
+    rows = frame[frame.tag == tag]
+    rows = rows.assign(k=(rows.step.to_numpy() // window).astype(int))
+    per = rows.groupby(["env", "algo", "run", "k"])["value"].agg(
+        mean=lambda v: float(np.mean(v.to_numpy())), count="size"
+    )
     table = {}
-    for key, per_run in sorted(per_group.items()):
-        cells = []
-        for k in range(max(max(means) for means in per_run) + 1):
-            there = [means[k] for means in per_run if k in means]
-            cells.append((*mean_se([m for m, _ in there]), sum(c for _, c in there)) if there else None)
-        table[key] = cells
+    for key, group in per.groupby(level=["env", "algo"]):
+        by_k = group.groupby(level="k")
+        cells = {k: (*mean_se(g["mean"]), int(g["count"].sum())) for k, g in by_k}
+        table[key] = [cells.get(k) for k in range(max(cells) + 1)]
     return table
 
 
@@ -358,29 +305,26 @@ def steps_label(steps: int) -> str:
 def write_window_table(table, out, name, tag, window) -> str:
     windows = max(len(cells) for cells in table.values())
     labels = [f"{steps_label(k * window)}–{steps_label((k + 1) * window)}" for k in range(windows)]
+    rows = [
+        [env, algo, *(f"{mean_se_text(*c[:3])} (n={c[2]}, {c[3]})" if c else "–" for c in cells)]
+        + ["–"] * (windows - len(cells))
+        for (env, algo), cells in table.items()
+    ]
     lines = [
         f"`{tag}` per window of {window:,} env steps: per run the mean of its values in the window; mean ± standard"
         " error (population std / √n) over n runs (the mean alone for one run), and in brackets the number of"
         " values (games for episodic returns, iterations for losses and β).",
         "",
-        "| game | algorithm | " + " | ".join(labels) + " |",
-        "|---|---|" + "---|" * windows,
+        *markdown(["game", "algorithm", *labels], rows),
     ]
-    for (env, algo), cells in table.items():
-        text = [f"{mean_se_text(*c[:3])} (n={c[2]}, {c[3]})" if c else "–" for c in cells]
-        lines.append(f"| {env} | {algo} | " + " | ".join(text + ["–"] * (windows - len(cells))) + " |")
-    markdown = "\n".join(lines) + "\n"
-    with open(os.path.join(out, f"{name}_windows.md"), "w") as f:
-        f.write(markdown)
-    with open(os.path.join(out, f"{name}_windows.csv"), "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(["game", "algorithm", "tag", "window_start", "window_end", "n", "mean", "std_err", "values"])
-        for (env, algo), cells in table.items():
-            for k, c in enumerate(cells):
-                if c:
-                    se = c[1] if c[2] > 1 else ""
-                    writer.writerow([env, algo, tag, k * window, (k + 1) * window, c[2], c[0], se, c[3]])
-    return markdown
+    csv_rows = [
+        {"game": env, "algorithm": algo, "tag": tag, "window_start": k * window, "window_end": (k + 1) * window}
+        | {"n": c[2], "mean": c[0], "std_err": c[1] if c[2] > 1 else "", "values": c[3]}
+        for (env, algo), cells in table.items()
+        for k, c in enumerate(cells)
+        if c
+    ]
+    return write(out, f"{name}_windows", "\n".join(lines) + "\n", csv_rows)
 
 
 def last10_average(steps, values):
@@ -405,56 +349,85 @@ def interpolate(curves, grid_points):
     return grid, np.stack([np.interp(grid, s, v) for s, v in curves])
 
 
-def figure_curves(runs, kind, grid_points):
-    """For one game and one figure: algo -> (grid, centre, band or None)."""
-    tag = FIGURES[kind][0]
+def figure_curves(frame, kind, grid_points):
+    """For one game's rows and one figure: algo -> (grid, centre, band or None, runs)."""
+    rows = frame[frame.tag == FIGURES[kind][0]]
     curves = {}
-    for algo in sorted({r.algo for r in runs}):
-        series = [r.scalars[tag] for r in runs if r.algo == algo and tag in r.scalars]
+    for algo in sorted(frame.algo.unique()):
+        series = [(g.step.to_numpy(), g.value.to_numpy()) for _, g in rows[rows.algo == algo].groupby("run")]
         if kind == "return_last10":
             series = [last10_average(s, v) for s, v in series]
         grid, values = interpolate(series, grid_points)
         if grid is None:
             continue
         if kind == "return_variance":
-            curves[algo] = (grid, values.var(axis=0), None)
+            curves[algo] = (grid, values.var(axis=0), None, len(values))
         else:
-            mean = values.mean(axis=0)
             se = values.std(axis=0) / np.sqrt(len(values))
-            curves[algo] = (grid, mean, se if len(values) > 1 else None)
+            curves[algo] = (grid, values.mean(axis=0), se if len(values) > 1 else None, len(values))
     return curves
 
 
-def write_figures(runs, out, grid_points) -> list[str]:
+def pyplot():
     import matplotlib
 
-    matplotlib.use("Agg")
+    matplotlib.use("Agg")  # files only, whatever display the machine has
     import matplotlib.pyplot as plt
 
-    written = []
-    for env in sorted({r.env for r in runs}):
-        env_runs = [r for r in runs if r.env == env]
+    return plt
+
+
+def plot(ax, curves, title, ylabel, fontsize=None) -> None:
+    """One game's curves on `ax`: each algorithm's centre line (its run count in the legend) and ± band."""
+    for algo, (grid, centre, band, n) in curves.items():
+        (line,) = ax.plot(grid, centre, label=f"{algo} (n={n})")
+        if band is not None:
+            ax.fill_between(grid, centre - band, centre + band, color=line.get_color(), alpha=0.25)
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=fontsize)
+
+
+def write_figures(frame, out, grid_points) -> list[str]:
+    """Per game, one figure per FIGURES entry (thesis figs. 5.1-5.16), mean ± s.e. over runs."""
+    plt, written = pyplot(), []
+    for env, env_frame in frame.groupby("env"):
         for kind, (_, ylabel, title) in FIGURES.items():
-            curves = figure_curves(env_runs, kind, grid_points)
+            curves = figure_curves(env_frame, kind, grid_points)
             if not curves:
                 continue
             fig, ax = plt.subplots(figsize=(6.4, 4.2))
-            for algo, (grid, centre, band) in curves.items():
-                n = sum(1 for r in env_runs if r.algo == algo and FIGURES[kind][0] in r.scalars)
-                (line,) = ax.plot(grid, centre, label=f"{algo} (n={n})")
-                if band is not None:
-                    ax.fill_between(grid, centre - band, centre + band, color=line.get_color(), alpha=0.25)
-            ax.set_xlabel("environment steps")
-            ax.set_ylabel(ylabel)
-            ax.set_title(f"{env}: {title}")
-            ax.grid(alpha=0.3)
-            ax.legend()
+            plot(ax, curves, f"{env}: {title}", ylabel)
             fig.tight_layout()
-            path = os.path.join(out, f"{env}__{kind}.png")
-            fig.savefig(path, dpi=120)
+            written.append(os.path.join(out, f"{env}__{kind}.png"))
+            fig.savefig(written[-1], dpi=120)
             plt.close(fig)
-            written.append(path)
     return written
+
+
+def write_games_figure(frame, out, grid_points, name) -> str | None:
+    """One figure of every game's training return curves side by side (mean ± s.e. over runs), as the
+    thesis's figures 5.1/5.5."""
+    envs = sorted(frame[frame.tag == "charts/episodic_return"].env.unique())
+    if len(envs) < 2:
+        return None
+    plt = pyplot()
+    cols = min(3, len(envs))
+    rows = -(-len(envs) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.4 * rows), squeeze=False)
+    for ax, env in zip(axes.flat, envs, strict=False):
+        curves = figure_curves(frame[frame.env == env], "episodic_return", grid_points)
+        plot(ax, curves, env, "episodic return", fontsize="small")
+    for ax in axes.flat[len(envs) :]:
+        ax.set_visible(False)
+    fig.suptitle("training return (full games), mean ± s.e. over runs")
+    fig.tight_layout()
+    path = os.path.join(out, f"{name}.png")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def human_normalised(score, env):
@@ -486,17 +459,7 @@ def mean_gap_shares(scores, games, p3o, ppo) -> tuple[str, float, dict]:
     return "\n".join(lines), float(gap), shares
 
 
-def per_game_scores(runs, tag, last, algos) -> dict:
-    """env -> algo -> the per-run statistics of the tag, for the algorithms named."""
-    per = {}
-    for run in runs:
-        stat = run_statistic(run, tag, last)
-        if stat is not None and run.algo in algos:
-            per.setdefault(run.env, {}).setdefault(run.algo, []).append(stat)
-    return per
-
-
-def across_games(runs, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tuple[str | None, list[str], dict]:
+def across_games(statistics, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tuple[str | None, list[str], dict]:
     """The interquartile mean, median and mean of human-normalised scores with stratified-bootstrap 95% CIs,
     the probability that P3O improves on PPO, and (with `figure_path`) the performance profile, with rliable
     (Agarwal et al. 2021)."""
@@ -505,7 +468,7 @@ def across_games(runs, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tup
 
     notes = []
     per = {}
-    for env, algos in per_game_scores(runs, tag, last, (p3o, ppo)).items():
+    for env, algos in per_game_scores(statistics, (p3o, ppo)).items():
         if env.split("-")[0] not in REFERENCE_SCORES:
             notes.append(f"{env}: no human/random reference score, left out of the across-game comparison")
             continue
@@ -570,11 +533,9 @@ def across_games(runs, tag, last, p3o, ppo, reps, seed, figure_path=None) -> tup
     shares_text, gap, shares = mean_gap_shares(scores, games, p3o, ppo)
     lines += ["", shares_text]
     if figure_path:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
         from rliable import plot_utils
+
+        plt = pyplot()
 
         fig, ax = plt.subplots(figsize=(6.4, 4.2))
         plot_utils.plot_performance_profiles(profiles, taus, performance_profile_cis=profile_cis, ax=ax)
@@ -605,7 +566,6 @@ def exact_permutation_p(a, b) -> float:
     """The two-sided p of the difference of means under every split of the pooled runs into groups of
     len(a) and len(b) (scipy's exact permutation test: 20 splits for 3 against 3, 252 for 5 against 5).
     Ties count as they fall, unlike the exact Mann-Whitney U of scipy, which ignores them."""
-    from scipy import stats
 
     def difference(x, y, axis):
         return np.mean(x, axis=axis) - np.mean(y, axis=axis)
@@ -616,13 +576,13 @@ def exact_permutation_p(a, b) -> float:
     return float(test.pvalue)
 
 
-def per_game_tests(runs, tag, last, p3o, ppo) -> str | None:
+def per_game_tests(statistics, tag, last, p3o, ppo) -> str | None:
     """Per game, whether P3O and PPO can be told apart: the difference of the means with Welch's 95% CI and
     two-sided p (a t test: assumes roughly normal run scores), and the exact two-sided permutation test of
     the difference of means (assumes nothing but exchangeable runs)."""
     from math import comb
 
-    per = per_game_scores(runs, tag, last, (p3o, ppo))
+    per = per_game_scores(statistics, (p3o, ppo))
     games = sorted(env for env, algos in per.items() if len(algos.get(p3o, [])) > 1 and len(algos.get(ppo, [])) > 1)
     if not games:
         return None
@@ -648,145 +608,10 @@ def per_game_tests(runs, tag, last, p3o, ppo) -> str | None:
 
 def compare(a, b) -> tuple[float, float, float, float, float]:
     """mean(a) - mean(b), Welch's 95% CI of it and its two-sided p, and the exact permutation test's p."""
-    from scipy import stats
-
     a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
     welch = stats.ttest_ind(a, b, equal_var=False)
     lo, hi = welch.confidence_interval(0.95)
     return float(a.mean() - b.mean()), float(lo), float(hi), float(welch.pvalue), exact_permutation_p(a, b)
-
-
-def write_games_figure(runs, out, grid_points, name) -> str | None:
-    """One figure of every game's training return curves side by side (mean ± s.e. over runs), as the
-    thesis's figures 5.1/5.5."""
-    envs = sorted({r.env for r in runs if "charts/episodic_return" in r.scalars})
-    if len(envs) < 2:
-        return None
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    cols = min(3, len(envs))
-    rows = -(-len(envs) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.4 * rows), squeeze=False)
-    for ax, env in zip(axes.flat, envs, strict=False):
-        env_runs = [r for r in runs if r.env == env]
-        for algo, (grid, centre, band) in figure_curves(env_runs, "episodic_return", grid_points).items():
-            n = sum(1 for r in env_runs if r.algo == algo and "charts/episodic_return" in r.scalars)
-            (line,) = ax.plot(grid, centre, label=f"{algo} (n={n})")
-            if band is not None:
-                ax.fill_between(grid, centre - band, centre + band, color=line.get_color(), alpha=0.25)
-        ax.set_title(env)
-        ax.set_xlabel("environment steps")
-        ax.set_ylabel("episodic return")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize="small")
-    for ax in axes.flat[len(envs) :]:
-        ax.set_visible(False)
-    fig.suptitle("training return (full games), mean ± s.e. over runs")
-    fig.tight_layout()
-    path = os.path.join(out, f"{name}.png")
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-def process_spans(iteration_times, process_starts) -> list[tuple[float, float]]:
-    """Per process that trained a run (the run's first start, then each resume from a checkpoint; each wrote
-    an event file named for its start time), (its start, the time of its last per-iteration point). The points
-    that TensorBoard purges on a resume (iterations after the last checkpoint, run again) end the killed
-    process's span early."""
-    t = np.sort(np.asarray(iteration_times, dtype=np.float64))
-    if not len(t):
-        return []
-    starts = sorted(s for s in process_starts if s <= t[-1]) or [float(t[0])]  # files renamed: one process
-    spans = []
-    for k, start in enumerate(starts):
-        end = starts[k + 1] if k + 1 < len(starts) else np.inf
-        mine = t[(t >= start) & (t < end)]
-        if len(mine):
-            spans.append((float(start), float(mine[-1])))
-    return spans
-
-
-def union_hours(spans) -> float:
-    """Hours covered by at least one of the spans (the machine's wall clock while any run was training)."""
-    total, reach = 0.0, -np.inf
-    for start, end in sorted(spans):
-        if end > reach:
-            total += end - max(start, reach)
-            reach = end
-    return total / 3600
-
-
-def utc(t: float) -> str:
-    return time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime(t))
-
-
-def mean_and_range(x) -> str:
-    """A cell of hours.md: the mean of x with its (min–max) where x holds more than one value."""
-    if not x:
-        return "–"
-    return f"{np.mean(x):.2f}" if len(x) == 1 else f"{np.mean(x):.2f} ({min(x):.2f}–{max(x):.2f})"
-
-
-def write_hours(runs, out) -> str | None:
-    """OUT/hours.md (per game and algorithm) and hours.csv (per run): how long training took. Per run the
-    elapsed time of its processes (`process_spans`), which holds every slowdown and pause, and the median time
-    of an iteration (the gaps between its per-iteration points within one process), its usual pace; the
-    evaluation games after training are in neither."""
-    rows = []
-    for run in runs:
-        if run.iteration_times is None or not len(run.iteration_times):
-            continue
-        spans = process_spans(run.iteration_times, run.process_starts)
-        t = run.iteration_times
-        gaps = np.concatenate([np.diff(t[(t >= a) & (t <= b)]) for a, b in spans])
-        pace = float(np.median(gaps)) if len(gaps) else float("nan")  # nan: one iteration per process
-        elapsed = sum(b - a for a, b in spans) / 3600
-        # every process after the first is a resume, also one killed in its start-up (no iteration, no span)
-        resumes = max(sum(1 for start in run.process_starts if start <= t[-1]) - 1, 0)
-        rows.append((run, spans, len(t), pace, elapsed, resumes))
-    if not rows:
-        return None
-    lines = [
-        "How long training took (wall clock, from the event files; the evaluation games after training are not"
-        " counted). Per run: the hours its processes ran, from each start to its last iteration, which hold every"
-        " slowdown (other work on the cores) and pause, and the median seconds between two of its iterations;"
-        " resumes: times it was stopped and resumed from a checkpoint. Means over runs, (min–max).",
-        "",
-        "| game | algorithm | runs | hours elapsed | s per iteration, median | resumes |",
-        "|---|---|---|---|---|---|",
-    ]
-    per_group = {}
-    for row in rows:
-        per_group.setdefault((row[0].env, row[0].algo), []).append(row)
-    for (env, algo), group in sorted(per_group.items()):
-        cells = [mean_and_range([r[i] for r in group if not np.isnan(r[i])]) for i in (4, 3)]
-        resumes = sum(r[5] for r in group)
-        lines.append(f"| {env} | {algo} | {len(group)} | " + " | ".join(cells) + f" | {resumes} |")
-    all_spans = [span for r in rows for span in r[1]]
-    lines += [
-        "",
-        f"All {len(rows)} runs: {sum(r[4] for r in rows):.1f} hours elapsed summed over runs (core-hours for runs"
-        f" of one core each); at least one of them was training during {union_hours(all_spans):.1f} hours of wall"
-        f" clock between {utc(min(a for a, _ in all_spans))} and {utc(max(b for _, b in all_spans))}.",
-    ]
-    markdown = "\n".join(lines) + "\n"
-    with open(os.path.join(out, "hours.md"), "w") as f:
-        f.write(markdown)
-    with open(os.path.join(out, "hours.csv"), "w", newline="") as f:
-        writer = csv.writer(f)
-        header = ["run", "game", "algorithm", "iterations", "hours_elapsed", "seconds_per_iteration", "resumes"]
-        writer.writerow(header + ["first_start_utc", "last_iteration_utc"])
-        for run, spans, iterations, pace, elapsed, resumes in rows:
-            name = os.path.basename(run.path)
-            writer.writerow(
-                [name, run.env, run.algo, iterations, f"{elapsed:.4f}", "" if np.isnan(pace) else f"{pace:.2f}"]
-                + [resumes, utc(spans[0][0]), utc(spans[-1][1])]
-            )
-    return markdown
 
 
 def folder_problem(path: str) -> str | None:
@@ -823,16 +648,16 @@ def rounded(x: float, like: float) -> str:
     return f"{x:,.{decimals}f}"
 
 
-def readme_block(runs, table, tag, last, p3o, ppo, aggregate) -> str:
+def readme_block(frame, statistics, table, tag, last, p3o, ppo, aggregate) -> str:
     """The README's results: per game the mean ± s.e. (n) of each algorithm and the random policy, the two
     per-game tests, the thesis's table 5.1; then the across-game aggregates in one line."""
-    per = per_game_scores(runs, tag, last, (p3o, ppo))
+    per = per_game_scores(statistics, (p3o, ppo))
     envs = sorted(
         {env for env, _ in table},
         key=lambda env: (list(THESIS_TABLE).index(env.split("-")[0]) if env.split("-")[0] in THESIS_TABLE else 99, env),
     )
     others = sorted({algo for _, algo in table} - {p3o, ppo})
-    games = [len(run.scalars[tag][1]) for run in runs if tag in run.scalars]
+    games = list(frame[frame.tag == tag].groupby("run").size())
     each = f"the mean of its {games[0]} values" if len(set(games)) == 1 else "the mean of its values"
     lines = [
         f"Per game: mean ± standard error over n runs (n in brackets), each run's score being {each} of `{tag}`"
@@ -907,45 +732,42 @@ def main(args: Args) -> dict:
     if folder_problem(args.out):
         sys.exit(f"error: --out {args.out} cannot be a folder for the tables: {folder_problem(args.out)}.")
     readme = readme_markers(args.readme) if args.readme else None
-    runs, problems = find_runs(args.roots, args.group_regex, args.above)
+    frame, problems = find_runs(args.roots, args.group_regex, args.above)
     for problem in problems:
         print(f"skipped: {problem}", file=sys.stderr)
-    if not runs:
+    if frame.empty:
         sys.exit(f"error: no readable runs under {', '.join(args.roots)}.")
     os.makedirs(args.out, exist_ok=True)
     label = args.tag if args.above is None else f"{args.tag} share above {args.above:g}"
-    table, missing = summarise(runs, args.tag, args.last)
-    for problem in missing:
-        print(f"skipped: {problem}", file=sys.stderr)
-    result = {"runs": len(runs), "table": table, "figures": [], "across_games": None}
+    statistics = per_run(frame, args.tag, args.last)
+    for run in sorted(set(frame.run) - set(statistics.index.get_level_values("run"))):
+        print(f"skipped: {run}: no '{args.tag}' values, left out of the table", file=sys.stderr)
+    table = {key: mean_se(x) for key, x in statistics.groupby(level=["env", "algo"])}
+    result = {"runs": frame.run.nunique(), "table": table, "figures": [], "across_games": None}
     if table:
         print(write_table(table, args.out, args.table_name, label, args.last))
         print(f"wrote {os.path.join(args.out, args.table_name)}.md and .csv")
     else:
         print(f"no run has '{args.tag}'; no table written", file=sys.stderr)
-    result["windows"] = summarise_windows(runs, args.tag, args.window_steps) if args.window_steps else {}
+    result["windows"] = summarise_windows(frame, args.tag, args.window_steps) if args.window_steps else {}
     if result["windows"]:
         print(write_window_table(result["windows"], args.out, args.table_name, label, args.window_steps))
         print(f"wrote {os.path.join(args.out, args.table_name)}_windows.md and .csv")
     profile = os.path.join(args.out, f"{args.table_name}_performance_profile.png") if args.figures else None
     comparison, notes, aggregate = across_games(
-        runs, args.tag, args.last, args.p3o_name, args.ppo_name, args.bootstrap_reps, args.seed, profile
+        statistics, args.tag, args.last, args.p3o_name, args.ppo_name, args.bootstrap_reps, args.seed, profile
     )
     for note in notes:
         print(f"note: {note}", file=sys.stderr)
     if comparison:
-        with open(os.path.join(args.out, f"{args.table_name}_across_games.md"), "w") as f:
-            f.write(comparison)
-        print(comparison)
+        print(write(args.out, f"{args.table_name}_across_games", comparison))
         result["across_games"] = comparison
-    tests = per_game_tests(runs, args.tag, args.last, args.p3o_name, args.ppo_name)
+    tests = per_game_tests(statistics, args.tag, args.last, args.p3o_name, args.ppo_name)
     if tests:
-        with open(os.path.join(args.out, f"{args.table_name}_per_game_tests.md"), "w") as f:
-            f.write(tests)
-        print(tests)
+        print(write(args.out, f"{args.table_name}_per_game_tests", tests))
     result["per_game_tests"] = tests
     if readme is not None:
-        block = readme_block(runs, table, label, args.last, args.p3o_name, args.ppo_name, aggregate)
+        block = readme_block(frame, statistics, table, label, args.last, args.p3o_name, args.ppo_name, aggregate)
         before, rest = readme.split(README_BEGIN)
         after = rest.split(README_END)[1]
         with open(f"{args.readme}.tmp", "w") as f:  # written whole, then renamed: never half a README
@@ -953,13 +775,9 @@ def main(args: Args) -> dict:
         os.replace(f"{args.readme}.tmp", args.readme)
         print(f"wrote the results block of {args.readme}")
         result["readme_block"] = block
-    result["hours"] = write_hours(runs, args.out) if args.hours else None
-    if result["hours"]:
-        print(result["hours"])
-        print(f"wrote {os.path.join(args.out, 'hours')}.md and .csv")
     if args.figures:
-        result["figures"] = write_figures(runs, args.out, args.grid_points)
-        games = write_games_figure(runs, args.out, args.grid_points, "games__episodic_return")
+        result["figures"] = write_figures(frame, args.out, args.grid_points)
+        games = write_games_figure(frame, args.out, args.grid_points, "games__episodic_return")
         result["figures"] += [games] if games else []
         result["figures"] += [profile] if comparison else []
         print(f"wrote {len(result['figures'])} figures to {args.out}/")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from torch.utils.tensorboard import SummaryWriter
 
-from benchmark import results
+from benchmark import hours, results
 
 P3O, PPO = "p3o_atari_envpool", "ppo_atari_envpool"
 # eval returns per (game, algo, seed): 10 games each, known means
@@ -134,15 +134,16 @@ def test_interpolation_aligns_runs_logged_at_different_steps():
 
 
 def test_curves_of_runs_with_different_logging_steps_average_by_step(root):
-    runs, _ = results.find_runs((root,))
-    breakout = [r for r in runs if r.env == "Breakout-v5"]
+    frame, _ = results.find_runs((root,))
+    breakout = frame[frame.env == "Breakout-v5"]
     curves = results.figure_curves(breakout, "episodic_return", 50)
-    grid, mean, se = curves[PPO]
+    grid, mean, se, n = curves[PPO]
+    assert n == 3
     # seeds 1, 2, 3 log step/1000 + seed at every 1000, 2000, 3000 steps: at any common step the mean
     # is step/1000 + 2 and the standard error that of (1, 2, 3); by index they would not line up
     np.testing.assert_allclose(mean, grid / 1000 + 2, rtol=1e-6)
     np.testing.assert_allclose(se, np.std([1, 2, 3]) / np.sqrt(3), rtol=1e-6)
-    _, variance, _ = results.figure_curves(breakout, "return_variance", 50)[PPO]
+    _, variance, _, _ = results.figure_curves(breakout, "return_variance", 50)[PPO]
     np.testing.assert_allclose(variance, np.var([1, 2, 3]), rtol=1e-6)
 
 
@@ -193,23 +194,23 @@ def test_no_runs_is_a_clear_error(tmp_path):
         results.main(results.Args(roots=(str(tmp_path),), out=str(tmp_path / "o")))
 
 
-def test_runs_named_with_run_name_are_grouped_by_their_logged_hyperparameters(tmp_path):
-    # folders named as a user names them with --run-name: only the logged hyperparameters say what they are
-    for name, env, algo, value in [("breakout_p3o", "Breakout-v5", P3O, 4.0), ("b_ppo_a", "Breakout-v5", PPO, 2.0)]:
+def test_runs_are_grouped_by_their_folder_name_and_others_are_skipped_by_name(tmp_path, capsys):
+    # a folder named as the scripts name runs, `{env_id}__{exp_name}__{seed}[__{time}]`, is grouped by that name,
+    # whether or not it logged hyperparameters; a folder named otherwise (--run-name mine) is skipped, by name,
+    # with the way out (name it so, or --group-regex), even though it logged what it is
+    for name, value in [(f"Breakout-v5__{P3O}__1__1700000000", 4.0), (f"Qbert-v5__{PPO}__1", 7.0), ("mine", 2.0)]:
         writer = SummaryWriter(str(tmp_path / "runs" / name))
-        writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n|exp_name|{algo}|\n|seed|1|\n|env_id|{env}|")
+        if name == "mine":
+            writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n|exp_name|{PPO}|\n|env_id|Breakout-v5|")
         writer.add_scalar("eval/episodic_return", value, 0)
         writer.close()
-    # and a run that logged none falls back on its folder name
-    writer = SummaryWriter(str(tmp_path / "runs" / f"Qbert-v5__{PPO}__1__1"))
-    writer.add_scalar("eval/episodic_return", 7.0, 0)
-    writer.close()
     result = results.main(results.Args(roots=(str(tmp_path / "runs"),), out=str(tmp_path / "o"), figures=False))
-    assert result["table"] == {
-        ("Breakout-v5", P3O): (4.0, 0.0, 1),
-        ("Breakout-v5", PPO): (2.0, 0.0, 1),
-        ("Qbert-v5", PPO): (7.0, 0.0, 1),
-    }
+    assert result["table"] == {("Breakout-v5", P3O): (4.0, 0.0, 1), ("Qbert-v5", PPO): (7.0, 0.0, 1)}
+    err = capsys.readouterr().err
+    assert f"skipped: {tmp_path}/runs/mine: " in err and "--group-regex" in err
+    regex = r"^(?P<env>mi)(?P<algo>ne)$"  # --group-regex names what the folder name does not say
+    args = results.Args(roots=(str(tmp_path / "runs"),), out=str(tmp_path / "o"), figures=False, group_regex=regex)
+    assert results.main(args)["table"] == {("mi", "ne"): (2.0, 0.0, 1)}
 
 
 def test_a_folder_named_for_another_algorithm_than_it_logged_is_grouped_by_its_name_with_a_warning(tmp_path, capsys):
@@ -243,8 +244,9 @@ def test_above_reads_a_histogram_as_the_share_of_values_above_a_threshold(tmp_pa
     args = results.Args(roots=(str(tmp_path / "runs"),), out=str(tmp_path / "o"), figures=False)
     args.tag, args.above, args.window_steps, args.table_name = "p3o/beta", 0.5, 5000, "beta_above"
     result = results.main(args)
-    (run,), _ = results.find_runs(args.roots, above=0.5)
-    steps, shares = run.scalars["p3o/beta"]
+    frame, _ = results.find_runs(args.roots, above=0.5)
+    assert frame.run.nunique() == 1
+    steps, shares = frame[frame.tag == "p3o/beta"].step.to_numpy(), frame[frame.tag == "p3o/beta"].value.to_numpy()
     assert list(steps) == list(range(1000, 11_000, 1000))
     np.testing.assert_allclose(shares, truth, atol=0.02)
     assert shares[-1] > shares[0] + 0.3  # the distributions move right, and so does the share
@@ -450,7 +452,7 @@ def test_hours_are_the_elapsed_time_of_each_process_and_the_union_over_runs(tmp_
     write_process(os.path.join(root, f"Breakout-v5__{PPO}__1"), t0, range(1, 21), every=200)
     write_run(root, "Breakout-v5", "random", 1, [1.0] * 10, step_every=50_000)
     out = str(tmp_path / "out")
-    results.main(results.Args(roots=(root,), out=out, figures=False, bootstrap_reps=10))
+    hours.main(hours.Args(roots=(root,), out=out))
     with open(os.path.join(out, "hours.csv")) as f:
         rows = {r["algorithm"]: r for r in csv.DictReader(f)}
     assert set(rows) == {P3O, PPO}
@@ -510,7 +512,7 @@ def test_the_readme_results_block_is_what_results_py_writes_from_the_committed_r
     readme = tmp_path / "README.md"
     readme.write_text(open(os.path.join(repo, "README.md")).read())
     runs = os.path.join(repo, "benchmark", "results", "learning_check", "runs")
-    results.main(results.Args(roots=(runs,), out=str(tmp_path), figures=False, hours=False, readme=str(readme)))
+    results.main(results.Args(roots=(runs,), out=str(tmp_path), figures=False, readme=str(readme)))
     assert readme.read_text() == open(os.path.join(repo, "README.md")).read(), (
         "README.md's results block is not what the committed runs give; rewrite it with `uv run python"
         " benchmark/results.py benchmark/results/learning_check/runs --out benchmark/results/learning_check"
@@ -540,7 +542,7 @@ def test_an_exp_name_with_double_underscores_is_not_split_at_them(tmp_path, caps
             writer.add_text("hyperparameters", table)
             writer.add_scalar("eval/episodic_return", value, 0)
             writer.close()
-    result = results.main(results.Args(roots=(root,), out=str(tmp_path / "out"), figures=False, hours=False))
+    result = results.main(results.Args(roots=(root,), out=str(tmp_path / "out"), figures=False))
     assert set(result["table"]) == {("Breakout-v5", "my__a"), ("Breakout-v5", "my__b")}
     assert result["table"]["Breakout-v5", "my__a"][:3] == (10.0, 0.0, 2)
     assert "warning" not in capsys.readouterr().err
@@ -554,7 +556,7 @@ def test_a_truncated_event_file_is_named_and_its_complete_records_used(tmp_path,
     assert results.truncation(path) is None
     with open(path, "ab") as f:  # a write cut short: a record's header and part of its data
         f.write((1000).to_bytes(8, "little") + b"\x00" * 4 + b"partial")
-    result = results.main(results.Args(roots=(root,), out=str(tmp_path / "out"), figures=False, hours=False))
+    result = results.main(results.Args(roots=(root,), out=str(tmp_path / "out"), figures=False))
     err = capsys.readouterr().err
     assert f"warning: {path}: truncated: its last 19 bytes are an incomplete record" in err
     assert result["table"]["Breakout-v5", P3O][:3] == (7.0, 0.0, 1)  # the complete records are still read
