@@ -1,5 +1,6 @@
 # PPO on envpool Atari: CleanRL's ppo_atari_envpool.py for envpool 1.x (gymnasium-style API). README.md
 # has the docs; p3o_atari_envpool.py is this file plus P3O, so diff the two to see what P3O changes.
+import contextlib
 import ctypes
 import difflib
 import fcntl
@@ -15,7 +16,7 @@ import socket
 import sys
 import time
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 
 import envpool
 import numpy as np
@@ -97,13 +98,20 @@ class Args:
     target_kl: float | None = None
     """the target KL divergence threshold (early stop of the update epochs when exceeded)"""
 
-    # to be filled in runtime
-    batch_size: int = 0
+    # to be filled in runtime (init=False: not flags)
+    batch_size: int = field(init=False, default=0)
     """the batch size (computed in runtime: num_envs * num_steps)"""
-    minibatch_size: int = 0
+    minibatch_size: int = field(init=False, default=0)
     """the mini-batch size (computed in runtime)"""
-    num_iterations: int = 0
+    num_iterations: int = field(init=False, default=0)
     """the number of iterations (computed in runtime)"""
+
+    def __post_init__(self):
+        self.batch_size = self.num_envs * self.num_steps
+        self.minibatch_size = self.batch_size // max(self.num_minibatches, 1)
+        self.num_iterations = self.total_timesteps // max(self.batch_size, 1)
+        if not resuming(self):  # bad input fails where it is parsed; a resume's, with its checkpoint's arguments
+            check_args(self)
 
 
 def make_env(env_id: str, num_envs: int, seed: int, render_mode: str | None = None):
@@ -202,80 +210,60 @@ def explained_variance(values, returns, valid):
 
 def main(args: Args, cli: list[str] | None = None) -> dict[str, list[float]]:
     """Train; returns the seconds each iteration spent in the rollout and in the update (with the logging).
-    `cli` is the command line `args` were parsed from: a resume parses it again over the checkpoint's arguments."""
-    if not resuming(args):  # a resume's arguments are checked once the checkpoint's are in (read_checkpoint)
-        check_args(args)
-    keep_freed_memory()
-    run_dir, checkpoint = open_run(args, cli)  # on a resume, args become the checkpoint's
-    args.batch_size = int(args.num_envs * args.num_steps)
-    args.minibatch_size = int(args.batch_size // args.num_minibatches)
-    args.num_iterations = args.total_timesteps // args.batch_size
+    A resume parses `cli`, the command line `args` came from, again over the checkpoint's arguments."""
     timings = {"rollout_s": [], "update_s": []}
-    if checkpoint and checkpoint["finished"]:
-        print(f"{run_dir} already finished ({checkpoint['global_step']} steps); nothing to do.")
-        release(run_dir)
-        return timings
-    start_iteration = checkpoint["iteration"] if checkpoint else 0
-    checkpoint_path = os.path.join(run_dir, "checkpoint.pt")
+    with contextlib.ExitStack() as run:  # the run folder's lock, the writer, the envs: released however it ends
+        args, run_dir, checkpoint = run.enter_context(open_run(args, cli))  # a resume's args are its checkpoint's
+        if checkpoint and checkpoint["finished"]:
+            print(f"{run_dir} already finished ({checkpoint['global_step']} steps); nothing to do.")
+            return timings
+        start_iteration = checkpoint["iteration"] if checkpoint else 0
 
-    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
-    device_name = say_device(device, args.cuda)
+        device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+        device_name = say_device(device, args.cuda)
 
-    from torch.utils.tensorboard import SummaryWriter
+        writer = run.enter_context(open_writer(args, run_dir, checkpoint, device_name))
 
-    if args.track:  # W&B mirrors the TensorBoard events; started before the writer, which it patches
-        wandb = start_wandb(args, run_dir, resuming=checkpoint is not None)
-    # on resume, points the killed run logged after its checkpoint are purged, so none is duplicated
-    writer = SummaryWriter(run_dir, purge_step=start_iteration * args.batch_size + 1 if checkpoint else None)
-    if checkpoint is None:
-        table = "\n".join([f"|{key}|{value}|" for key, value in (vars(args) | {"device": device_name}).items()])
-        writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n{table}")
+        # TRY NOT TO MODIFY: seeding. envpool cannot save game states, so a resumed run plays fresh games with
+        # fresh random numbers: it is seeded past the environment seeds the run has used so far.
+        seed = args.seed + start_iteration * args.num_envs
+        random.seed(seed)
+        np.random.seed(seed)
+        torch.manual_seed(seed)
+        torch.backends.cudnn.deterministic = args.torch_deterministic
+        if device.type == "cuda":
+            torch.set_float32_matmul_precision("high")  # TF32 matmuls (cuDNN convolutions use TF32 by default)
 
-    # TRY NOT TO MODIFY: seeding. envpool cannot save game states, so a resumed run plays fresh games with
-    # fresh random numbers: it is seeded past the environment seeds the run has used so far.
-    seed = args.seed + start_iteration * args.num_envs
-    random.seed(seed)
-    np.random.seed(seed)
-    torch.manual_seed(seed)
-    torch.backends.cudnn.deterministic = args.torch_deterministic
-    if device.type == "cuda":
-        torch.set_float32_matmul_precision("high")  # TF32 matmuls (cuDNN convolutions use TF32 by default)
+        # env setup
+        envs = run.enter_context(contextlib.closing(make_env(args.env_id, args.num_envs, seed)))
+        # channels_last: the same network, with faster convolutions on the CPU and the GPU (benchmark/README.md)
+        agent = Agent(int(envs.action_space.n)).to(device, memory_format=torch.channels_last)
+        optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=device.type == "cuda")
+        if checkpoint:
+            agent.load_state_dict(checkpoint["model_state_dict"])
+            optimizer.load_state_dict(checkpoint["optimizer_state_dict"])
+            print(f"resuming {run_dir} after iteration {start_iteration} ({checkpoint['global_step']} steps)")
+        stop_signal = catch_stop_signals()
 
-    # env setup
-    envs = make_env(args.env_id, args.num_envs, seed)
-    # channels_last: the same network, with faster convolutions on the CPU and the GPU (benchmark/README.md)
-    agent = Agent(int(envs.action_space.n)).to(device, memory_format=torch.channels_last)
-    optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=device.type == "cuda")
-    if checkpoint:
-        agent.load_state_dict(checkpoint["model_state_dict"])
-        optimizer.load_state_dict(checkpoint["optimizer_state_dict"])
-        print(f"resuming {run_dir} after iteration {start_iteration} ({checkpoint['global_step']} steps)")
-    # SIGTERM (what Slurm sends before a preemption or the time limit) or SIGINT: finish the iteration,
-    # checkpoint, stop
-    stop_signal = []
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda signum, frame: stop_signal.append(signum))
+        # ALGO Logic: Storage setup. Frames stay uint8 (a quarter of float32's memory); rewards and dones are
+        # gathered on the host, where envpool returns them, and sent to the device once per rollout.
+        T, N = args.num_steps, args.num_envs
+        obs = torch.zeros((T, N) + envs.observation_space.shape, dtype=torch.uint8, device=device)
+        actions = torch.zeros((T, N), dtype=torch.long, device=device)
+        logprobs = torch.zeros((T, N), device=device)
+        values = torch.zeros((T, N), device=device)
+        rewards_np = np.zeros((T, N), dtype=np.float32)
+        dones_np = np.zeros((T, N), dtype=np.float32)
+        # full-game statistics (all lives)
+        episode_returns, episode_lengths, last_return = np.zeros(N), np.zeros(N, dtype=np.int64), float("nan")
 
-    # ALGO Logic: Storage setup. Frames stay uint8 (a quarter of float32's memory); rewards and dones are
-    # gathered on the host, where envpool returns them, and sent to the device once per rollout.
-    T, N = args.num_steps, args.num_envs
-    obs = torch.zeros((T, N) + envs.observation_space.shape, dtype=torch.uint8, device=device)
-    actions = torch.zeros((T, N), dtype=torch.long, device=device)
-    logprobs = torch.zeros((T, N), device=device)
-    values = torch.zeros((T, N), device=device)
-    rewards_np = np.zeros((T, N), dtype=np.float32)
-    dones_np = np.zeros((T, N), dtype=np.float32)
-    # full-game statistics (all lives)
-    episode_returns, episode_lengths, last_return = np.zeros(N), np.zeros(N, dtype=np.int64), float("nan")
+        # TRY NOT TO MODIFY: start the game
+        global_step = start_global_step = start_iteration * args.batch_size
+        start_time = time.time()
+        next_obs_np, _ = envs.reset()
+        next_obs = torch.as_tensor(next_obs_np, device=device)
+        next_done_np = np.zeros(N, dtype=bool)
 
-    # TRY NOT TO MODIFY: start the game
-    global_step = start_global_step = start_iteration * args.batch_size
-    start_time = time.time()
-    next_obs_np, _ = envs.reset()
-    next_obs = torch.as_tensor(next_obs_np, device=device)
-    next_done_np = np.zeros(N, dtype=bool)
-
-    try:
         for iteration in range(start_iteration + 1, args.num_iterations + 1):
             # Annealing the rate if instructed to do so.
             if args.anneal_lr:
@@ -381,19 +369,7 @@ def main(args: Args, cli: list[str] | None = None) -> dict[str, list[float]]:
                 if args.target_kl is not None and approx_kl.item() > args.target_kl:
                     break
 
-            with torch.no_grad():  # weights can blow up and stay finite: the agent must still act on its next states
-                hidden = agent.hidden(next_obs)
-                finite &= torch.isfinite(agent.actor(hidden)).all() & torch.isfinite(agent.critic(hidden)).all()
-            if not finite.item():  # stop before a checkpoint can take weights the agent cannot act with
-                kept = (
-                    f"{checkpoint_path} keeps the last weights it could act with"
-                    if os.path.exists(checkpoint_path)
-                    else "nothing was saved"
-                )
-                sys.exit(
-                    f"error: the loss or the policy became non-finite (nan or inf) in iteration {iteration}, so the run"
-                    f" stopped and {kept} (a lower --learning-rate or --max-grad-norm may help)."
-                )
+            stop_if_not_finite(finite, agent, next_obs, iteration, run_dir)
 
             # one host transfer for all of this iteration's statistics
             stats = {
@@ -416,54 +392,9 @@ def main(args: Args, cli: list[str] | None = None) -> dict[str, list[float]]:
             print(
                 f"iteration {iteration}/{args.num_iterations} {global_step=} SPS={sps} {last_return=:.1f}", flush=True
             )
-            if stop_signal or (args.checkpoint_every and iteration % args.checkpoint_every == 0):
-                save_checkpoint(checkpoint_path, agent, optimizer, args, iteration)
-            if stop_signal:
-                print(
-                    f"stopped by signal {stop_signal[0]} after iteration {iteration}; continue with --resume {run_dir}"
-                )
-                sys.exit(128 + stop_signal[0])
+            checkpoint_or_stop(stop_signal, iteration, run_dir, agent, optimizer, args)
 
-        save_checkpoint(checkpoint_path, agent, optimizer, args, args.num_iterations)
-        # from here a signal stops the final stage at once, and the checkpoint just written redoes only this stage
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, stop_final_stage)
-        try:
-            if stop_signal:  # it came after the last iteration's check
-                raise Stopped(stop_signal[0])
-            # a redone last stage (--resume after it failed) plays the evaluation only if none was logged yet
-            evaluated = os.path.exists(f"{run_dir}/eval.json")
-            if evaluated:
-                print(f"{run_dir}/eval.json: this run's evaluation was logged before; not played again")
-            if args.eval_episodes and not evaluated:
-                print(f"evaluating: {args.eval_episodes} full games", flush=True)
-                videos = f"{run_dir}/videos" if args.capture_video else None
-                seed = args.seed + 1_000_000
-                report = evaluate(agent, args.env_id, args.eval_episodes, seed, args.eval_greedy, device, videos)
-                write_evaluation(
-                    report | {"algorithm": ALGORITHM, "global_step": global_step, "device": device_name},
-                    run_dir,
-                    writer,
-                )
-                print(f"eval: {args.eval_episodes} games, return {report['mean']:.1f} ± {report['std_err']:.1f}")
-                if args.track and videos:
-                    wandb.log({f"videos/eval-game{i}": wandb.Video(path) for i, path in enumerate(report["videos"])})
-            if args.save_model:
-                model_path = f"{run_dir}/{args.exp_name}.cleanrl_model"
-                save(model_path, agent, args, env_id=args.env_id, num_actions=agent.actor.out_features)
-        except Stopped as stop:
-            print(f"stopped by signal {stop.signum} in the final stage; continue with --resume {run_dir}")
-            sys.exit(128 + stop.signum)
-        except Exception as e:  # after a whole training: one sentence, and the checkpoint to redo this stage from
-            sys.exit(
-                f"error: the evaluation or model saving after training failed ({type(e).__name__}: {e}); the trained"
-                f" agent is kept in {checkpoint_path}: run again with --resume {run_dir} to redo them."
-            )
-        save_checkpoint(checkpoint_path, agent, optimizer, args, args.num_iterations, finished=True)
-    finally:
-        envs.close()
-        writer.close()
-        release(run_dir)
+        finish(args, run_dir, agent, optimizer, writer, stop_signal, device, device_name)
     return timings
 
 
@@ -487,7 +418,6 @@ def check_args(args: Args) -> None:
     bad += [f"{flag[n]} must be 0 or more, got {a[n]}." for n in not_negative if not a[n] >= 0]
     if args.target_kl is not None and not args.target_kl > 0:
         bad.append(f"--target-kl must be positive, got {args.target_kl}.")
-    bad += [f"{flag[n]} is computed from the other sizes, so it cannot be set (got {a[n]})." for n in COMPUTED if a[n]]
     for n in ("exp_name", "run_name"):
         parts = [] if a[n] is None else a[n].split("/")
         if parts and (
@@ -550,14 +480,18 @@ FORMAT = "atari-envpool/2"  # checkpoints and saved models: the agent, its argum
 # arguments are the experiment's, from its checkpoint
 RUN_FLAGS = {"cuda", "save_model", "checkpoint_every", "resume", "auto_resume", "eval_episodes", "eval_greedy"}
 RUN_FLAGS |= {"capture_video", "track", "wandb_project_name", "wandb_entity"}
-COMPUTED = ("batch_size", "minibatch_size", "num_iterations")  # filled in at runtime from the other sizes
-HELD_RUNS = {}  # run folder -> the open lock file that holds it for this process
+INIT = [f.name for f in fields(Args) if f.init]  # the arguments; the others are computed from them
 
 
 def save(path: str, agent: Agent, args: Args, **extra) -> None:
     """The agent, its arguments and `extra`, written atomically (a temporary file, then a rename): a failed write
     (a full disk) stops the run with a sentence and leaves the previous file as it was."""
-    state = {"format": FORMAT, "algorithm": ALGORITHM, "args": vars(args), "model_state_dict": agent.state_dict()}
+    state = {
+        "format": FORMAT,
+        "algorithm": ALGORITHM,
+        "args": vars(args),
+        "model_state_dict": agent.state_dict(),
+    }
     try:
         torch.save(state | extra, f"{path}.tmp")
         os.replace(f"{path}.tmp", path)
@@ -578,24 +512,27 @@ def save_checkpoint(path, agent, optimizer, args, iteration, finished=False) -> 
     save(path, agent, args, optimizer_state_dict=optimizer.state_dict(), **progress)
 
 
-def open_run(args: Args, cli: list[str] | None = None) -> tuple[str, dict | None]:
-    """The run folder, held by this process alone until `main` ends, and for a resume its checkpoint."""
-    if resuming(args) and args.resume is None:
-        args.resume = f"runs/{args.run_name}"
+@contextlib.contextmanager
+def open_run(args: Args, cli: list[str] | None = None):
+    """The run folder, held by this process alone until the `with` ends, as (args, run_dir, checkpoint): a resume's
+    checkpoint and arguments (read_checkpoint), or a new run's clean folder and no checkpoint."""
+    keep_freed_memory()
+    resume = f"runs/{args.run_name}" if resuming(args) and args.resume is None else args.resume
     path = None
-    if args.resume is None:
+    if resume is None:
         run_dir = f"runs/{args.run_name or f'{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}'}"
     else:
-        path = os.path.join(args.resume, "checkpoint.pt") if os.path.isdir(args.resume) else args.resume
+        path = os.path.join(resume, "checkpoint.pt") if os.path.isdir(resume) else resume
         if not os.path.isfile(path):
             sys.exit(f"error: --resume {path}: there is no checkpoint there.")
         run_dir = os.path.dirname(path)
-    hold(run_dir)
-    try:
-        return run_dir, start_clean(run_dir) if path is None else read_checkpoint(path, args, cli)
-    except SystemExit:
-        release(run_dir)
-        raise
+    with hold(run_dir):
+        if path is None:
+            start_clean(run_dir)
+            yield args, run_dir, None
+        else:
+            args, checkpoint = read_checkpoint(path, resume, args, cli)
+            yield args, run_dir, checkpoint
 
 
 def resuming(args: Args) -> bool:
@@ -649,9 +586,9 @@ def finished_logs(paths: list[str]) -> bool:
         return False
 
 
-def read_checkpoint(path: str, args: Args, cli: list[str] | None) -> dict:
-    """A resume's checkpoint. It gives the experiment's arguments and refuses one given here that contradicts
-    them; the run flags keep the run's values unless given again (in `cli`; in-process: when not at their default)."""
+def read_checkpoint(path: str, resume: str, args: Args, cli: list[str] | None) -> tuple[Args, dict]:
+    """A resume's checkpoint and arguments: the experiment's from the checkpoint, refusing one given here that
+    contradicts them; the run flags keep the run's values unless given again."""
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:
@@ -661,57 +598,48 @@ def read_checkpoint(path: str, args: Args, cli: list[str] | None) -> dict:
     if checkpoint["algorithm"] != ALGORITHM:
         algo = checkpoint["algorithm"]
         sys.exit(f"error: --resume {path} is a {algo} checkpoint; resume it with {algo}_atari_envpool.py.")
-    defaults, saved = vars(Args()), {k: v for k, v in checkpoint["args"].items() if k in vars(Args())}
-    if cli is not None:  # the command line again, over the checkpoint's arguments: what it leaves out keeps them
+    # the command line again, over the checkpoint's arguments (what it leaves out keeps them); in-process, every
+    # value of `args` is given. resume=path: the saved arguments alone are not checked (the merged ones are, below)
+    saved = {k: v for k, v in checkpoint["args"].items() if k in INIT}
+    if cli is not None:
         import tyro
 
-        given = vars(tyro.cli(Args, args=cli, default=Args(**saved)))
-    else:
-        given = {n: v if v != defaults[n] else saved.get(n, v) for n, v in vars(args).items()}
-    experiment = [name for name in defaults if name not in RUN_FLAGS and name not in COMPUTED and name in saved]
+        parsed = tyro.cli(Args, args=cli, default=Args(**saved | {"resume": path}))
+    given = {name: getattr(parsed if cli is not None else args, name) for name in INIT}
+    experiment = [name for name in INIT if name not in RUN_FLAGS and name in saved]
     differ = [name for name in experiment if given[name] != saved[name]]
     if differ:
         was = ", ".join(f"--{n.replace('_', '-')} {saved[n]!r} (now {given[n]!r})" for n in differ)
         sys.exit(f"error: --resume {path} was started with {was}; resume it with the same arguments.")
-    for name in RUN_FLAGS - {"resume", "auto_resume"}:
-        setattr(args, name, given[name])
-    for name in experiment:
-        setattr(args, name, saved[name])
+    args = Args(**given | {"resume": resume, "auto_resume": args.auto_resume})
     check_args(args)  # the run flags it keeps together with those given now
-    return checkpoint
+    return args, checkpoint
 
 
-def hold(run_dir: str) -> None:
-    """Make the run folder and lock it for this process (an OS lock, released however the process ends, so a
-    killed run never blocks its own resume); a second process given the same folder is refused."""
-    if os.path.realpath(run_dir) in HELD_RUNS:
-        return
+@contextlib.contextmanager
+def hold(run_dir: str):
+    """Make the run folder and lock it for this process until the `with` ends (an OS lock, released however the
+    process ends, so a killed run never blocks its own resume); a second process given the same folder is refused."""
     try:
         os.makedirs(run_dir, exist_ok=True)
         lock = open(os.path.join(run_dir, ".lock"), "a+")
     except OSError as e:
         sys.exit(f"error: cannot create the run folder {run_dir} ({e.strerror}).")
-    try:
-        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
+    with lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            lock.seek(0)
+            holder = lock.read().strip() or "another process"
+            sys.exit(
+                f"error: {run_dir} is in use by {holder}; one run folder takes one process (wait, or choose"
+                " another --run-name)."
+            )
         lock.seek(0)
-        holder = lock.read().strip() or "another process"
-        sys.exit(
-            f"error: {run_dir} is in use by {holder}; one run folder takes one process (wait, or choose"
-            " another --run-name)."
-        )
-    lock.seek(0)
-    lock.truncate()
-    lock.write(f"process {os.getpid()} on {socket.gethostname()}")
-    lock.flush()
-    HELD_RUNS[os.path.realpath(run_dir)] = lock
-
-
-def release(run_dir: str) -> None:
-    """Let the run folder go (for in-process callers; the OS does it when the process ends)."""
-    lock = HELD_RUNS.pop(os.path.realpath(run_dir), None)
-    if lock is not None:
-        lock.close()
+        lock.truncate()
+        lock.write(f"process {os.getpid()} on {socket.gethostname()}")
+        lock.flush()
+        yield
 
 
 def say_device(device: torch.device, cuda: bool) -> str:
@@ -726,6 +654,21 @@ def say_device(device: torch.device, cuda: bool) -> str:
         )
     print(f"device: {name}", flush=True)
     return name
+
+
+def open_writer(args: Args, run_dir: str, checkpoint: dict | None, device_name: str):
+    """CleanRL's TensorBoard writer (and W&B with --track). A new run logs its hyperparameters; a resume purges
+    the points the killed run logged after its checkpoint, so none is duplicated."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    if args.track:  # W&B mirrors the TensorBoard events; started before the writer, which it patches
+        start_wandb(args, run_dir, resuming=checkpoint is not None)
+    purge_step = checkpoint["iteration"] * args.batch_size + 1 if checkpoint else None
+    writer = SummaryWriter(run_dir, purge_step=purge_step)
+    if checkpoint is None:
+        table = "\n".join([f"|{key}|{value}|" for key, value in (vars(args) | {"device": device_name}).items()])
+        writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n{table}")
+    return writer
 
 
 def start_wandb(args: Args, run_dir: str, resuming: bool):
@@ -755,6 +698,80 @@ def start_wandb(args: Args, run_dir: str, resuming: bool):
             " locally and `wandb sync` later."
         )
     return wandb
+
+
+def catch_stop_signals() -> list[int]:
+    """SIGTERM (what Slurm sends before a preemption or the time limit) or SIGINT: noted in the list returned, so
+    that the run finishes its iteration, checkpoints and stops (checkpoint_or_stop)."""
+    stop_signal = []
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda signum, frame: stop_signal.append(signum))
+    return stop_signal
+
+
+def stop_if_not_finite(finite, agent, next_obs, iteration, run_dir) -> None:
+    """Stop before a checkpoint can take weights the agent cannot act with: a non-finite loss or gradient norm
+    (`finite`), or weights blown up but finite whose outputs on the next states are not."""
+    with torch.no_grad():
+        hidden = agent.hidden(next_obs)
+        finite &= torch.isfinite(agent.actor(hidden)).all() & torch.isfinite(agent.critic(hidden)).all()
+    if not finite.item():
+        path = os.path.join(run_dir, "checkpoint.pt")
+        kept = f"{path} keeps the last weights it could act with" if os.path.exists(path) else "nothing was saved"
+        sys.exit(
+            f"error: the loss or the policy became non-finite (nan or inf) in iteration {iteration}, so the run"
+            f" stopped and {kept} (a lower --learning-rate or --max-grad-norm may help)."
+        )
+
+
+def checkpoint_or_stop(stop_signal, iteration, run_dir, agent, optimizer, args) -> None:
+    """The periodic checkpoint; after a stop signal, a checkpoint of this iteration and the exit."""
+    if stop_signal or (args.checkpoint_every and iteration % args.checkpoint_every == 0):
+        save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), agent, optimizer, args, iteration)
+    if stop_signal:
+        print(f"stopped by signal {stop_signal[0]} after iteration {iteration}; continue with --resume {run_dir}")
+        sys.exit(128 + stop_signal[0])
+
+
+def finish(args, run_dir, agent, optimizer, writer, stop_signal, device, device_name) -> None:
+    """After the last iteration: a checkpoint, the evaluation (logged once, even when this stage is redone), the
+    model file, then the checkpoint marked finished. A failure or a signal here keeps the first checkpoint, from
+    which --resume redoes only this stage."""
+    checkpoint_path = os.path.join(run_dir, "checkpoint.pt")
+    save_checkpoint(checkpoint_path, agent, optimizer, args, args.num_iterations)
+    for sig in (signal.SIGTERM, signal.SIGINT):  # from here a signal stops the stage at once
+        signal.signal(sig, stop_final_stage)
+    try:
+        if stop_signal:  # it came after the last iteration's check
+            raise Stopped(stop_signal[0])
+        evaluated = os.path.exists(f"{run_dir}/eval.json")
+        if evaluated:
+            print(f"{run_dir}/eval.json: this run's evaluation was logged before; not played again")
+        if args.eval_episodes and not evaluated:
+            print(f"evaluating: {args.eval_episodes} full games", flush=True)
+            videos = f"{run_dir}/videos" if args.capture_video else None
+            seed = args.seed + 1_000_000
+            report = evaluate(agent, args.env_id, args.eval_episodes, seed, args.eval_greedy, device, videos)
+            global_step = args.num_iterations * args.batch_size
+            made = {"algorithm": ALGORITHM, "global_step": global_step, "device": device_name}
+            write_evaluation(report | made, run_dir, writer)
+            print(f"eval: {args.eval_episodes} games, return {report['mean']:.1f} ± {report['std_err']:.1f}")
+            if args.track and videos:
+                import wandb
+
+                wandb.log({f"videos/eval-game{i}": wandb.Video(path) for i, path in enumerate(report["videos"])})
+        if args.save_model:
+            model_path = f"{run_dir}/{args.exp_name}.cleanrl_model"
+            save(model_path, agent, args, env_id=args.env_id, num_actions=agent.actor.out_features)
+    except Stopped as stop:
+        print(f"stopped by signal {stop.signum} in the final stage; continue with --resume {run_dir}")
+        sys.exit(128 + stop.signum)
+    except Exception as e:  # after a whole training: one sentence, and the checkpoint to redo this stage from
+        sys.exit(
+            f"error: the evaluation or model saving after training failed ({type(e).__name__}: {e}); the trained"
+            f" agent is kept in {checkpoint_path}: run again with --resume {run_dir} to redo them."
+        )
+    save_checkpoint(checkpoint_path, agent, optimizer, args, args.num_iterations, finished=True)
 
 
 def evaluate(agent, env_id, episodes, seed, greedy, device, video_dir=None) -> dict:

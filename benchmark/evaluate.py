@@ -108,7 +108,7 @@ def main(args: Args) -> dict:
     saved = None if args.random else load_model(args.model_path, load_script("ppo"))
     script = load_script("ppo" if saved is None else saved["algorithm"])
     env_id = args.env_id or saved["args"]["env_id"]
-    script.check_args(script.Args(env_id=env_id))  # the scripts' refusal of a game that is not envpool Atari
+    script.Args(env_id=env_id)  # its checks refuse a game that is not envpool Atari
     num_actions = int(script.envpool.make_spec(env_id).action_space.n)
     if saved is None:
         agent = UniformPolicy(num_actions)

@@ -126,7 +126,9 @@ for command in sys.argv[3:]:
     try:  # tyro's own message is a box of many lines: one sentence instead
         with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
             args = tyro.cli(script.Args, args=base + extra, prog=words[at], console_outputs=False)
-    except SystemExit:
+    except SystemExit as e:
+        if isinstance(e.code, str):  # the script's own check of the values (Args.__post_init__): its sentence
+            raise
         sys.exit(f"error: EXTRA_ARGS '{sys.argv[2]}' holds a flag or value that {os.path.basename(words[at])} does not take (see its --help).")
     given = vars(tyro.cli(script.Args, args=base, prog=words[at]))
     for name, knob in owner.items():
@@ -140,8 +142,7 @@ for command in sys.argv[3:]:
             saved = script.torch.load(path, map_location="cpu", weights_only=True, mmap=True)["args"]
         except Exception:  # unreadable: the run itself says why when it starts
             continue
-        skip = script.RUN_FLAGS | set(script.COMPUTED)
-        differ = [n for n in vars(args) if n not in skip and n in saved and saved[n] != getattr(args, n)]
+        differ = [n for n in script.INIT if n not in script.RUN_FLAGS and n in saved and saved[n] != getattr(args, n)]
         if differ:
             was = ", ".join(f"--{n.replace('_', '-')} {saved[n]} (now {getattr(args, n)})" for n in differ)
             sys.exit(

@@ -1,6 +1,8 @@
 import os
 import sys
 
+import pytest
+
 # The whole suite runs on the CPU whatever the host has: the pinned numbers were recorded on the CPU, and a
 # GPU would run TF32 convolutions. Set before torch initialises CUDA, and inherited by the scripts the tests
 # start as subprocesses.
@@ -31,7 +33,32 @@ SLOWEST_FIRST = (
 )
 
 
+# the quick tier, `uv run pytest -m "not slow"`: the maths and the refusals of bad input, in-process (their tests
+# that start a script are marked slow one by one); every test of the other files trains or starts programs
+QUICK_FILES = ("test_maths.py", "test_bad_input.py")
+
+
+def pytest_ignore_collect(collection_path, config):
+    """With `-m "not slow"`, the other files are not even imported (every test in them is slow): the quick tier
+    is not kept waiting for torch's, envpool's and TensorBoard's imports in files it would deselect."""
+    if config.getoption("markexpr", "").replace(" ", "") == "notslow" and collection_path.suffix == ".py":
+        return collection_path.name.startswith("test_") and collection_path.name not in QUICK_FILES
+    return None
+
+
+def pytest_xdist_auto_num_workers(config):
+    """`-n auto` (pyproject.toml) for the quick tier: one process, since starting workers takes longer than its
+    tests; the full suite: one worker per CPU (at most 4, pyproject.toml), as pytest-xdist counts them."""
+    if config.getoption("markexpr", "").replace(" ", "") == "notslow":
+        return 0
+    return None
+
+
 def pytest_collection_modifyitems(items):
-    """Collect the slow files first, each file's tests in their order (a stable sort); the rest keep theirs."""
+    """Collect the slow files first, each file's tests in their order (a stable sort); the rest keep theirs.
+    Every test outside QUICK_FILES is marked slow."""
     rank = {name: i for i, name in enumerate(SLOWEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+    for item in items:
+        if item.path.name not in QUICK_FILES:
+            item.add_marker(pytest.mark.slow)

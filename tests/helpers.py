@@ -48,3 +48,12 @@ def assert_logged(run_dir, *rows: str) -> None:
     text = hyperparameters(run_dir)
     missing = [row for row in rows if f"|{row}|" not in text]
     assert not missing, (str(run_dir), missing)
+
+
+def assert_refusal(message: str, *fragments: str) -> None:
+    """A refusal of bad input: one line that starts with `error:`, no traceback, and each fragment in it (the
+    flag, the value, what to do instead): its content, not its exact wording."""
+    message = message.removesuffix("\n")
+    assert message.startswith("error: ") and "\n" not in message and "Traceback" not in message, message
+    missing = [fragment for fragment in fragments if fragment not in message]
+    assert not missing, (message, missing)

@@ -18,7 +18,7 @@ import torch
 
 import p3o_atari_envpool as p3o
 import ppo_atari_envpool as ppo
-from helpers import ROOT, hyperparameters, scalars
+from helpers import ROOT, assert_refusal, hyperparameters, scalars
 
 SCRIPTS = {"ppo": ppo, "p3o": p3o}
 BATCH, ITERATIONS, UPDATES = 4 * 32, 10, 2  # UPDATES: minibatches x epochs per iteration
@@ -178,28 +178,57 @@ def refusal(module, cwd, monkeypatch, args):
 
 def test_changed_arguments_are_refused(stopped_run, monkeypatch):
     cwd, run_dir, _ = stopped_run
-    message = refusal(ppo, cwd, monkeypatch, args_for(ppo, num_envs=8, resume=run_dir))
-    assert message == (
-        f"error: --resume {run_dir}/checkpoint.pt was started with --num-envs 4 (now 8); "
-        "resume it with the same arguments."
-    )
+    message = refusal(ppo, cwd, monkeypatch, args_for(ppo, num_envs=8, resume=run_dir, run_name="s"))
+    assert_refusal(message, f"--resume {run_dir}/checkpoint.pt", "--num-envs 4 (now 8)")
+    assert "--seed" not in message  # only what differs
     message = refusal(ppo, cwd, monkeypatch, args_for(ppo, learning_rate=3e-4, seed=6, resume=run_dir))
-    assert "--seed 5 (now 6), --learning-rate 0.001 (now 0.0003)" in message
+    assert "--seed 5 (now 6), --run-name 's' (now None), --learning-rate 0.001 (now 0.0003)" in message
     message = refusal(p3o, cwd, monkeypatch, args_for(p3o, resume=run_dir))
-    assert (
-        message == f"error: --resume {run_dir}/checkpoint.pt is a ppo checkpoint; resume it with ppo_atari_envpool.py."
-    )
+    assert_refusal(message, f"--resume {run_dir}/checkpoint.pt", "ppo checkpoint", "ppo_atari_envpool.py")
 
 
 def test_a_bare_resume_takes_the_saved_arguments(stopped_run, monkeypatch):
-    # `--resume DIR` alone: every experiment flag left at its default takes the checkpoint's value
+    # `--resume DIR` alone: every experiment flag not given takes the checkpoint's value
     cwd, run_dir, iteration = stopped_run
-    args = ppo.Args(resume=run_dir, eval_episodes=0)
+    cli = ["--resume", run_dir, "--eval-episodes", "0"]
     monkeypatch.chdir(cwd)
-    opened, checkpoint = ppo.open_run(args)
-    assert opened == run_dir and checkpoint["iteration"] == iteration
+    with ppo.open_run(ppo.Args(resume=run_dir, eval_episodes=0), cli) as (args, opened, checkpoint):
+        assert opened == run_dir and checkpoint["iteration"] == iteration
     assert (args.num_envs, args.num_steps, args.seed, args.total_timesteps) == (4, 32, 5, BATCH * ITERATIONS)
     assert args.eval_episodes == 0 and args.run_name == "s"
+
+
+def test_an_in_process_resume_keeps_every_value_it_is_given(stopped_run, monkeypatch):
+    """In-process there is no command line to tell a given value from a default: every value of the Args counts
+    as given, so a run flag given at its default (--checkpoint-every 10; the run used 0) is kept, not replaced
+    by the run's, and the resume goes the one way a command line's does (the same checks, the same refusals)."""
+    cwd, run_dir, iteration = stopped_run
+    monkeypatch.chdir(cwd)
+    given = args_for(ppo, resume=run_dir, run_name="s", checkpoint_every=10)
+    with ppo.open_run(given) as (args, _, checkpoint):
+        assert checkpoint["iteration"] == iteration and checkpoint["args"]["checkpoint_every"] == 0
+    assert args.checkpoint_every == 10 and (args.batch_size, args.num_iterations) == (BATCH, ITERATIONS)
+    cli = ["--resume", run_dir]  # the command line: what it leaves out keeps the run's value
+    with ppo.open_run(ppo.Args(resume=run_dir), cli) as (args, _, _):
+        assert args.checkpoint_every == 0
+
+
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_a_failure_before_training_lets_the_run_folder_go(algo, tmp_path, monkeypatch):
+    """The run folder's lock, the writer and the environments are released together however the run ends: an
+    exception after the lock is taken (here the environments fail to start, in-process) leaves no lock held, so
+    the same process (a sweep, a notebook) can start the run again at once."""
+    module = SCRIPTS[algo]
+    monkeypatch.chdir(tmp_path)
+
+    def failing_make_env(*args, **kwargs):
+        raise RuntimeError("no emulator today")
+
+    monkeypatch.setattr(module, "make_env", failing_make_env)
+    with pytest.raises(RuntimeError, match="no emulator today"):
+        module.main(args_for(module, run_name="r"))
+    with module.hold("runs/r"):  # refused with "in use by" if the failed run still held it
+        assert open(tmp_path / "runs" / "r" / ".lock").read() == f"process {os.getpid()} on {socket.gethostname()}"
 
 
 @pytest.mark.parametrize("damage", ["truncated", "garbage", "empty"])
@@ -209,7 +238,7 @@ def test_damaged_checkpoints_are_refused_by_name(damage, stopped_run, tmp_path, 
     bad = tmp_path / "checkpoint.pt"
     bad.write_bytes({"truncated": data[: len(data) // 2], "garbage": b"not a checkpoint" * 100, "empty": b""}[damage])
     message = refusal(ppo, tmp_path, monkeypatch, args_for(ppo, resume=str(bad)))
-    assert message.startswith(f"error: --resume {bad} is not a readable checkpoint; it may be truncated or corrupt")
+    assert_refusal(message, f"--resume {bad}", "not a readable checkpoint")
 
 
 def test_a_model_file_is_not_a_checkpoint(stopped_run, tmp_path, monkeypatch):
@@ -218,33 +247,33 @@ def test_a_model_file_is_not_a_checkpoint(stopped_run, tmp_path, monkeypatch):
     model = {k: saved[k] for k in ("format", "algorithm", "args", "model_state_dict")}
     torch.save(model, tmp_path / "model.cleanrl_model")
     message = refusal(ppo, tmp_path, monkeypatch, args_for(ppo, resume=str(tmp_path / "model.cleanrl_model")))
-    assert message == f"error: --resume {tmp_path}/model.cleanrl_model is not a checkpoint written by these scripts."
+    assert_refusal(message, f"--resume {tmp_path}/model.cleanrl_model", "not a checkpoint")
 
 
 def test_a_run_name_in_use_is_not_overwritten(stopped_run, monkeypatch):
     cwd, _, _ = stopped_run
     message = refusal(ppo, cwd, monkeypatch, args_for(ppo, run_name="s"))
-    assert message == "error: runs/s already holds a run; continue it with --resume runs/s."
+    assert_refusal(message, "runs/s", "--resume runs/s")
 
 
 def test_auto_resume_needs_a_run_name(tmp_path, monkeypatch):
-    message = refusal(ppo, tmp_path, monkeypatch, args_for(ppo, auto_resume=True))
-    assert message == "error: --auto-resume needs --run-name, the run folder it continues."
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as excinfo:  # where the arguments are made (Args.__post_init__), before main
+        args_for(ppo, auto_resume=True)
+    assert_refusal(str(excinfo.value.code), "--auto-resume", "--run-name")
+    assert not (tmp_path / "runs").exists()
 
 
 def test_resume_of_a_missing_checkpoint_is_refused(tmp_path, monkeypatch):
     message = refusal(p3o, tmp_path, monkeypatch, args_for(p3o, resume="runs/nothing-here"))
-    assert message == "error: --resume runs/nothing-here: there is no checkpoint there."
+    assert_refusal(message, "--resume runs/nothing-here", "no checkpoint")
 
 
 def test_refusals_on_the_command_line_exit_1_with_one_sentence(stopped_run):
     cwd, run_dir, _ = stopped_run
     proc = run("p3o", cwd, "--resume", run_dir)
     assert proc.returncode == 1
-    assert (
-        proc.stderr
-        == f"error: --resume {run_dir}/checkpoint.pt is a ppo checkpoint; resume it with ppo_atari_envpool.py.\n"
-    )
+    assert_refusal(proc.stderr, f"--resume {run_dir}/checkpoint.pt", "ppo checkpoint", "ppo_atari_envpool.py")
 
 
 def test_points_logged_after_the_checkpoint_are_purged_on_resume(stopped_run, tmp_path):
@@ -473,10 +502,8 @@ def test_a_resume_may_restate_the_runs_own_values(tmp_path):
         capture_output=True,
         text=True,
     )
-    assert other.returncode == 1 and other.stderr == (
-        f"error: --resume runs/r/checkpoint.pt was started with --total-timesteps {2 * BATCH} (now {4 * BATCH});"
-        " resume it with the same arguments.\n"
-    )
+    assert other.returncode == 1
+    assert_refusal(other.stderr, "--resume runs/r/checkpoint.pt", f"--total-timesteps {2 * BATCH} (now {4 * BATCH})")
 
 
 def eval_points(run_dir) -> list[tuple[int, float]]:
@@ -553,9 +580,8 @@ def test_a_finished_run_without_its_checkpoint_keeps_its_logs(tmp_path):
     (run_dir / "checkpoint.pt").unlink()
     files = {p.name: p.read_bytes() for p in run_dir.glob("events.out.tfevents.*")}
     again = run("ppo", tmp_path, "--run-name", "done", "--total-timesteps", str(2 * BATCH), "--auto-resume")
-    assert again.returncode == 1 and again.stderr == (
-        "error: runs/done holds the logs of a finished run but no checkpoint; give this run another --run-name.\n"
-    )
+    assert again.returncode == 1
+    assert_refusal(again.stderr, "runs/done", "finished run", "--run-name")
     assert {p.name: p.read_bytes() for p in run_dir.glob("events.out.tfevents.*")} == files and files
     assert "iteration 1/" not in again.stdout
 
