@@ -16,7 +16,7 @@ import socket
 import sys
 import time
 import uuid
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import envpool
 import numpy as np
@@ -563,6 +563,7 @@ def open_run(args: Args, cli: list[str] | None = None):
     """The run folder, held by this process alone until the `with` ends, as (args, run_dir, checkpoint): a resume's
     checkpoint and arguments (read_checkpoint), or a new run's clean folder and no checkpoint."""
     keep_freed_memory()
+    args = replace(args)  # made again: a value set after Args(...) is checked and the sizes computed from it
     resume = f"runs/{args.run_name}" if resuming(args) and args.resume is None else args.resume
     path = None
     if resume is None:

@@ -123,18 +123,21 @@ for command in sys.argv[3:]:
     at = next(i for i, w in enumerate(words) if w.endswith("_atari_envpool.py"))
     script = importlib.import_module(words[at].rsplit("/", 1)[-1][: -len(".py")])
     base = words[at + 1 : len(words) - len(extra)]
+    # parsed as resumes, which Args leaves unchecked (check_args comes below, after the sweep's own knobs): the
+    # command without EXTRA_ARGS need not be a valid run by itself (a short TOTAL_TIMESTEPS is one once EXTRA_ARGS
+    # shrinks the batch); a --resume in EXTRA_ARGS comes later and wins
+    unchecked = ["--resume", "(unchecked)"]
     try:  # tyro's own message is a box of many lines: one sentence instead
         with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
-            args = tyro.cli(script.Args, args=base + extra, prog=words[at], console_outputs=False)
-    except SystemExit as e:
-        if isinstance(e.code, str):  # the script's own check of the values (Args.__post_init__): its sentence
-            raise
+            args = tyro.cli(script.Args, args=unchecked + base + extra, prog=words[at], console_outputs=False)
+    except SystemExit:
         sys.exit(f"error: EXTRA_ARGS '{sys.argv[2]}' holds a flag or value that {os.path.basename(words[at])} does not take (see its --help).")
-    given = vars(tyro.cli(script.Args, args=base, prog=words[at]))
+    given = vars(tyro.cli(script.Args, args=unchecked + base, prog=words[at]))
     for name, knob in owner.items():
         if name in given and given[name] != getattr(args, name):
             flag = "--" + name.replace("_", "-")
             sys.exit(f"error: EXTRA_ARGS sets {flag} ({getattr(args, name)}), which the sweep sets for {knob}.")
+    args.resume = None
     script.check_args(args)
     path = os.path.join("runs", args.run_name, "checkpoint.pt")
     if os.path.isfile(path):

@@ -7,9 +7,10 @@ comparison across games (interquartile mean of human-normalised scores, rliable'
 
 Runs are folders holding `events.out.tfevents.*` files, read into one long table (run, game, algorithm, tag,
 step, value, wall time) and grouped by their folder's name, `{env_id}__{exp_name}[__{seed}[__{time}]]` as the
-training scripts name them (a warning when the run logged another env id or exp name), or by `--group-regex`
-with named groups `env` and `algo`. Runs with unreadable files, no events, another name or a missing tag are
-reported by name and skipped. How long the runs took: benchmark/hours.py.
+training scripts name them (a warning when the run logged another env id or exp name; a folder named otherwise,
+by `--run-name` or evaluate.py, by the env id and exp name it logged), or by `--group-regex` with named groups
+`env` and `algo`. Runs with unreadable files, no events, no name to group by or a missing tag are reported by
+name and skipped. How long the runs took: benchmark/hours.py.
 """
 
 import glob
@@ -168,22 +169,23 @@ def find_runs(roots, group_regex=None, above=None) -> tuple[pd.DataFrame, list[s
         except Exception as e:  # a truncated or foreign file: say which, go on
             problems.append(f"{folder}: unreadable event file ({type(e).__name__}: {e}), skipped")
             continue
-        groups = name_groups(name, pattern)
-        if groups is None:
-            problems.append(
-                f"{folder}: name does not match --group-regex, skipped"
-                if pattern
-                else f"{folder}: a name not {{env_id}}__{{exp_name}}__... (name it so, or use --group-regex), skipped"
-            )
-            continue
-        logged = logged_identity(acc)
-        if not pattern and len(logged) == 2 and groups != (logged["env_id"], logged["exp_name"]):
+        groups, logged = name_groups(name, pattern), logged_identity(acc)
+        if groups is None and not pattern and len(logged) == 2:  # a --run-name or evaluate.py folder: what it logged
+            groups = (logged["env_id"], logged["exp_name"])
+        elif groups and not pattern and len(logged) == 2 and groups != (logged["env_id"], logged["exp_name"]):
             # the folder name is what TensorBoard shows and what the user can rename: it decides, loudly
             print(
                 f"warning: {folder}: the folder name says {groups[0]} / {groups[1]} but the run logged"
                 f" {logged['env_id']} / {logged['exp_name']}; grouped by the folder name",
                 file=sys.stderr,
             )
+        if groups is None:
+            problems.append(
+                f"{folder}: name does not match --group-regex, skipped"
+                if pattern
+                else f"{folder}: no logged hyperparameters and a name not {{env_id}}__{{exp_name}}__..., skipped"
+            )
+            continue
         if not points:
             problems.append(f"{folder}: no scalar events, skipped")
             continue

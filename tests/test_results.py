@@ -194,23 +194,23 @@ def test_no_runs_is_a_clear_error(tmp_path):
         results.main(results.Args(roots=(str(tmp_path),), out=str(tmp_path / "o")))
 
 
-def test_runs_are_grouped_by_their_folder_name_and_others_are_skipped_by_name(tmp_path, capsys):
-    # a folder named as the scripts name runs, `{env_id}__{exp_name}__{seed}[__{time}]`, is grouped by that name,
-    # whether or not it logged hyperparameters; a folder named otherwise (--run-name mine) is skipped, by name,
-    # with the way out (name it so, or --group-regex), even though it logged what it is
-    for name, value in [(f"Breakout-v5__{P3O}__1__1700000000", 4.0), (f"Qbert-v5__{PPO}__1", 7.0), ("mine", 2.0)]:
+def test_runs_named_with_run_name_are_grouped_by_their_logged_hyperparameters(tmp_path):
+    # folders named as a user names them with --run-name: only the logged hyperparameters say what they are
+    for name, env, algo, value in [("breakout_p3o", "Breakout-v5", P3O, 4.0), ("b_ppo_a", "Breakout-v5", PPO, 2.0)]:
         writer = SummaryWriter(str(tmp_path / "runs" / name))
-        if name == "mine":
-            writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n|exp_name|{PPO}|\n|env_id|Breakout-v5|")
+        writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n|exp_name|{algo}|\n|seed|1|\n|env_id|{env}|")
         writer.add_scalar("eval/episodic_return", value, 0)
         writer.close()
+    # and a run that logged none falls back on its folder name
+    writer = SummaryWriter(str(tmp_path / "runs" / f"Qbert-v5__{PPO}__1__1"))
+    writer.add_scalar("eval/episodic_return", 7.0, 0)
+    writer.close()
     result = results.main(results.Args(roots=(str(tmp_path / "runs"),), out=str(tmp_path / "o"), figures=False))
-    assert result["table"] == {("Breakout-v5", P3O): (4.0, 0.0, 1), ("Qbert-v5", PPO): (7.0, 0.0, 1)}
-    err = capsys.readouterr().err
-    assert f"skipped: {tmp_path}/runs/mine: " in err and "--group-regex" in err
-    regex = r"^(?P<env>mi)(?P<algo>ne)$"  # --group-regex names what the folder name does not say
-    args = results.Args(roots=(str(tmp_path / "runs"),), out=str(tmp_path / "o"), figures=False, group_regex=regex)
-    assert results.main(args)["table"] == {("mi", "ne"): (2.0, 0.0, 1)}
+    assert result["table"] == {
+        ("Breakout-v5", P3O): (4.0, 0.0, 1),
+        ("Breakout-v5", PPO): (2.0, 0.0, 1),
+        ("Qbert-v5", PPO): (7.0, 0.0, 1),
+    }
 
 
 def test_a_folder_named_for_another_algorithm_than_it_logged_is_grouped_by_its_name_with_a_warning(tmp_path, capsys):

@@ -415,7 +415,8 @@ def test_a_failed_checkpoint_write_leaves_the_previous_checkpoint_whole(stopped_
 
     monkeypatch.setattr(torch, "save", save_half_then_fail)
     agent = ppo.Agent(4)
-    args = ppo.Args(batch_size=BATCH)
+    args = ppo.Args(num_envs=4, num_steps=32, num_minibatches=2, total_timesteps=BATCH * ITERATIONS)
+    assert args.batch_size == BATCH
     optimizer = torch.optim.Adam(agent.parameters())
     with pytest.raises(SystemExit) as excinfo:
         ppo.save_checkpoint(path, agent, optimizer, args, iteration + 1)
