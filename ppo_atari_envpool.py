@@ -208,15 +208,13 @@ def explained_variance(values, returns, valid):
     return torch.where(var_y == 0, torch.nan, 1 - (y_true - y_pred).var(unbiased=False) / var_y)
 
 
-def main(args: Args, cli: list[str] | None = None) -> dict[str, list[float]]:
-    """Train; returns the seconds each iteration spent in the rollout and in the update (with the logging).
-    A resume parses `cli`, the command line `args` came from, again over the checkpoint's arguments."""
-    timings = {"rollout_s": [], "update_s": []}
+def main(args: Args, cli: list[str] | None = None) -> None:
+    """Train. A resume parses `cli`, the command line `args` came from, again over the checkpoint's arguments."""
     with contextlib.ExitStack() as run:  # the run folder's lock, the writer, the envs: released however it ends
         args, run_dir, checkpoint = run.enter_context(open_run(args, cli))  # a resume's args are its checkpoint's
         if checkpoint and checkpoint["finished"]:
             print(f"{run_dir} already finished ({checkpoint['global_step']} steps); nothing to do.")
-            return timings
+            return
         start_iteration = checkpoint["iteration"] if checkpoint else 0
 
         device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
@@ -369,7 +367,8 @@ def main(args: Args, cli: list[str] | None = None) -> dict[str, list[float]]:
                 if args.target_kl is not None and approx_kl.item() > args.target_kl:
                     break
 
-            stop_if_not_finite(finite, agent, next_obs, iteration, run_dir)
+            stop_if_not_finite(finite, agent, next_obs, iteration, run_dir)  # its check waits for the device
+            update_end = time.perf_counter()
 
             # one host transfer for all of this iteration's statistics
             stats = {
@@ -386,16 +385,15 @@ def main(args: Args, cli: list[str] | None = None) -> dict[str, list[float]]:
             sps = int((global_step - start_global_step) / (time.time() - start_time))
             writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
             writer.add_scalar("charts/SPS", sps, global_step)
+            writer.add_scalar("charts/rollout_time", rollout_end - iteration_start, global_step)  # seconds (sps.py)
+            writer.add_scalar("charts/update_time", update_end - rollout_end, global_step)
             writer.flush()
-            timings["rollout_s"].append(rollout_end - iteration_start)
-            timings["update_s"].append(time.perf_counter() - rollout_end)
             print(
                 f"iteration {iteration}/{args.num_iterations} {global_step=} SPS={sps} {last_return=:.1f}", flush=True
             )
             checkpoint_or_stop(stop_signal, iteration, run_dir, agent, optimizer, args)
 
         finish(args, run_dir, agent, optimizer, writer, stop_signal, device, device_name)
-    return timings
 
 
 # Run management: bad input, checkpoints and resume, evaluation, the allocator.

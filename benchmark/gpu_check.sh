@@ -1,10 +1,14 @@
 #!/usr/bin/env bash
-# The first GPU figures in one prepared command (the GPU machine is lent for 15 minutes in all, its start
-# included): both scripts train briefly on CUDA and evaluate, then benchmark/sps.py at the thesis's sizes and
-# at CleanRL's, each step under its own time limit, at most 8 minutes together. Writes six files to OUT (the
-# device tool brings back at most 8): summary.txt (one line per step, "ok" or "FAILED" with the reason, so
-# one call tells what to fix), gpu_check.log (every step's output), tiny_ppo.json and tiny_p3o.json (device,
-# losses, evaluation of the tiny runs), sps_thesis.json and sps_cleanrl.json (sps.py's own JSON).
+# The GPU visit in one prepared command (the GPU machine is lent for 15 minutes in all, its start included):
+# a real run of each training script at the thesis's settings (the scripts' defaults: 256 envs x 256 steps,
+# 8 epochs x 8 minibatches) for 1M steps, each read back (the device it trained on, finite losses, its
+# evaluation, its steady-state steps/s and its training return: a learning point per script), then
+# benchmark/sps.py at the same sizes (raw envpool, the ceiling) and a comparison of the three. Each step runs
+# under its own time limit, set from what the first GPU visit measured with about 20% margin: 540 s (9
+# minutes) at most together. Writes six files to OUT (the device tool brings back at most 8): summary.txt (one line per step,
+# "ok" or "FAILED" with the reason, then the comparison), gpu_check.log (every step's output), run_ppo.json and
+# run_p3o.json (the read-backs), sps_thesis.json (sps.py's own JSON) and runs.tgz (both runs' event files,
+# eval.json and printed logs, without checkpoints or models, in folders named as the scripts name a seed-1 run).
 #
 # On the GPU machine, from the project root (../shared/gpu/README.md: the bundle is built here once with
 # `bash ../shared/gpu/envpool-bundle.sh` and carried as .gpu):
@@ -16,27 +20,29 @@
 set -uo pipefail
 
 OUT=$(mkdir -p "${OUT:-runs/gpu_check}" && cd "${OUT:-runs/gpu_check}" && pwd)
-PYTHON=${PYTHON:-python3}
 ENV_ID=${ENV_ID:-Breakout-v5}
 REHEARSAL=${REHEARSAL:-0}
 root=$(cd "$(dirname "$0")/.." && pwd)
-work=$(mktemp -d)  # the tiny runs' folders (checkpoints stay here, not in OUT)
+# the interpreter itself, so that the runs (started in a throw-away folder) use it too: "uv run python" finds the
+# project's environment only from inside the project
+PYTHON=$(cd "$root" && ${PYTHON:-python3} -c 'import sys; print(sys.executable)') || exit 1
+work=$(mktemp -d)  # the runs' folders (checkpoints and models stay here, not in OUT)
 trap 'rm -rf "$work"' EXIT
 : > "$OUT/summary.txt"
 : > "$OUT/gpu_check.log"
 
 if [ "$REHEARSAL" = 1 ]; then
-    device=cpu  # what the tiny runs must say they trained on
-    tiny=(--num-envs 4 --num-steps 32 --num-minibatches 2 --update-epochs 1 --total-timesteps 256 --eval-episodes 1)
-    thesis=(--num-envs 4 --num-steps 16 --num-minibatches 2 --update-epochs 1 --iterations 1 --warmup 1)
-    cleanrl=(--num-envs 2 --num-steps 16 --num-minibatches 2 --update-epochs 1 --iterations 1 --warmup 1)
-    limits=(120 120 300 300)
+    device=cpu  # what the runs must say they trained on
+    run=(--num-envs 4 --num-steps 32 --num-minibatches 2 --update-epochs 1 --total-timesteps 384 --eval-episodes 1)
+    sps=(--num-envs 4 --num-steps 32 --num-minibatches 2 --update-epochs 1 --iterations 2 --warmup 1)  # the runs' sizes
+    limits=(120 300 300 120 60)  # environment, each run, sps.py, each read-back, the archive and the comparison
 else
     device="cuda ("
-    tiny=(--num-envs 16 --num-steps 64 --num-minibatches 4 --update-epochs 2 --total-timesteps 2048 --eval-episodes 2)
-    thesis=(--thesis --iterations 3 --warmup 1)  # 256 envs x 256 steps, 8 epochs x 8 minibatches
-    cleanrl=(--iterations 5 --warmup 1)          # sps.py's default sizes: CleanRL's 8 envs x 128 steps, 4 x 4
-    limits=(60 60 200 90)  # with 60 s for the environment (10 s measured) and 20 s for each read-back: 510 s at most
+    # 15 iterations of 65,536 steps: about 110 s at the 8,600-9,400 steps/s a real P3O run logged there
+    run=(--total-timesteps 1000000 --eval-episodes 2)
+    sps=(--thesis --iterations 3 --warmup 1)  # about 130 s: raw envpool, then each script started as a user does
+    # measured: 10 s; about 130 s a run (start-up and evaluation included); about 130 s; 1 s; (new); (new)
+    limits=(20 160 150 15 10)  # 540 s at most with the archive and the comparison
 fi
 
 # step NAME SECONDS COMMAND...: COMMAND under `timeout`, its output appended to gpu_check.log, a summary line
@@ -56,21 +62,39 @@ step() {
     fi
 }
 
-# after a tiny run: the device it said, finite losses, its eval.json, as OUT/tiny_<algo>.json
+# after a run: the device it said, finite losses, its eval.json, its steady-state speed (the wall time between
+# its first and last charts/SPS events) and its training return over the last quarter of its steps
 read_back() {
-    $PYTHON - "$work/runs/$1" "$device" "$OUT/tiny_$1.json" <<'PY'
+    $PYTHON - "$work/runs/$1" "$device" "$OUT/run_$2.json" <<'PY'
 import json, math, os, sys
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 run, device, out = sys.argv[1:]
 if not os.path.isfile(f"{run}/eval.json"):
-    sys.exit("nothing to read back: the tiny run wrote no eval.json")
+    sys.exit("nothing to read back: the run wrote no eval.json")
 acc = EventAccumulator(run, size_guidance={"scalars": 0})
 acc.Reload()
-losses = {t: [e.value for e in acc.Scalars(t)] for t in acc.Tags()["scalars"] if t.startswith("losses/")}
+scalars = {t: acc.Scalars(t) for t in acc.Tags()["scalars"]}
+losses = {t: [e.value for e in events] for t, events in scalars.items() if t.startswith("losses/")}
 report = json.load(open(f"{run}/eval.json"))
-summary = {"device": report["device"], "eval_games": len(report["returns"]), "eval_mean": report["mean"]}
-summary |= {"losses": losses, "sps": [e.value for e in acc.Scalars("charts/SPS")]}
+sps = scalars["charts/SPS"]
+steps = sps[-1].step
+batch = sps[0].step
+returns = [e.value for e in scalars.get("charts/episodic_return", []) if e.step > 0.75 * steps]
+summary = {
+    "device": report["device"],
+    "eval_games": len(report["returns"]),
+    "eval_mean": report["mean"],
+    "steps": steps,
+    "iterations": len(sps),
+    # every iteration after the first (start-up), logging and checkpoints included: what the run gets
+    "steady_sps": (steps - batch) / (sps[-1].wall_time - sps[0].wall_time) if len(sps) > 1 else None,
+    "logged_sps": [e.value for e in sps],  # the scripts' own SPS, cumulative from the start
+    "rollout_s": [e.value for e in scalars["charts/rollout_time"]],
+    "update_s": [e.value for e in scalars["charts/update_time"]],
+    "train_return_last_quarter": {"mean": sum(returns) / len(returns) if returns else None, "games": len(returns)},
+    "losses": losses,
+}
 json.dump(summary, open(out, "w"), indent=2)
 # explained variance is nan by definition when the returns do not vary; every loss must be finite
 bad = [t for t, values in losses.items() if t != "losses/explained_variance" and not all(map(math.isfinite, values))]
@@ -78,12 +102,38 @@ if not report["device"].startswith(device):
     sys.exit(f"it trained on {report['device']}, not {device}...")
 if not losses or bad:
     sys.exit(f"non-finite or missing losses: {bad or 'none logged'}")
-print(f"device {report['device']}; losses finite; eval.json: {len(report['returns'])} games, mean {report['mean']}")
+if summary["steady_sps"] is None:
+    sys.exit("it logged one iteration: no steady-state speed to read")
+print(
+    f"device {report['device']}; losses finite; eval.json: {len(report['returns'])} games, mean {report['mean']}; "
+    f"{summary['steady_sps']:,.0f} steps/s after its first iteration (logged at its end: {sps[-1].value:,.0f}); "
+    f"training return {summary['train_return_last_quarter']['mean']} over the last quarter of its steps"
+)
+PY
+}
+
+# the runs' speed against sps.py's for the same script and sizes, and against raw envpool
+compare() {
+    $PYTHON - "$OUT" <<'PY'
+import json, os, sys
+
+out = sys.argv[1]
+missing = [f for f in ("sps_thesis.json", "run_ppo.json", "run_p3o.json") if not os.path.isfile(f"{out}/{f}")]
+if missing:
+    sys.exit(f"nothing to compare: {', '.join(missing)} missing (its step failed)")
+sps = json.load(open(f"{out}/sps_thesis.json"))["results"]
+raw = sps["raw_env"]["rollout_sps"]
+runs = {algo: json.load(open(f"{out}/run_{algo}.json"))["steady_sps"] for algo in ("ppo", "p3o")}
+for algo, run in runs.items():
+    measured = sps[algo]["iteration_sps"]
+    print(f"{algo}: run {run:,.0f} steps/s = {run / raw:.2f} x raw envpool ({raw:,.0f}); sps.py {measured:,.0f} = "
+          f"{measured / run:.2f} x the run")
+print(f"p3o/ppo: runs {runs['p3o'] / runs['ppo']:.3f}, sps.py {sps['p3o']['iteration_sps'] / sps['ppo']['iteration_sps']:.3f}")
 PY
 }
 
 export work device OUT PYTHON
-export -f read_back
+export -f read_back compare
 # torch and envpool, and on the GPU machine a usable GPU: without one every later step would train on the CPU and
 # read "ok", so the check stops here, naming it
 export REHEARSAL
@@ -94,18 +144,22 @@ print("torch", torch.__version__, "CUDA", torch.version.cuda, "available", cuda,
 if not cuda and sys.argv[1] != "1":
     sys.exit(f"torch {torch.__version__} finds no usable GPU (CUDA {torch.version.cuda}), so nothing would run on one")'
 export environment
-step environment 60 bash -c 'nvidia-smi 2>&1 | head -n 15; $PYTHON -c "$environment" "$REHEARSAL"'
+step environment "${limits[0]}" bash -c 'nvidia-smi 2>&1 | head -n 15; $PYTHON -c "$environment" "$REHEARSAL"'
 if grep -q '^FAILED  environment' "$OUT/summary.txt"; then
     echo "summary: $OUT/summary.txt (the environment failed, so nothing else ran); its output: $OUT/gpu_check.log"
     exit 1
 fi
 for algo in ppo p3o; do
-    i=$([ "$algo" = ppo ] && echo 0 || echo 1)
-    step "tiny_$algo" "${limits[$i]}" bash -c "cd '$work' && $PYTHON '$root/${algo}_atari_envpool.py' --env-id '$ENV_ID' ${tiny[*]} --run-name $algo"
-    step "read_back_$algo" 20 bash -c "read_back $algo"
+    name="${ENV_ID}__${algo}_atari_envpool__1"  # as the scripts name a seed-1 run, so that results.py groups it
+    step "run_$algo" "${limits[1]}" bash -c "cd '$work' && $PYTHON '$root/${algo}_atari_envpool.py' --env-id '$ENV_ID' \
+        ${run[*]} --seed 1 --run-name '$name' > '$work/$algo.log' 2>&1; rc=\$?; tail -n 3 '$work/$algo.log'; exit \$rc"
+    cp "$work/$algo.log" "$work/runs/$name/train.log" 2> /dev/null
+    step "read_back_$algo" "${limits[3]}" bash -c "read_back '$name' $algo"
 done
 cd "$root" || exit 1
-step sps_thesis "${limits[2]}" $PYTHON benchmark/sps.py --env-id "$ENV_ID" "${thesis[@]}" --rounds 2 --out "$OUT/sps_thesis.json"
-step sps_cleanrl "${limits[3]}" $PYTHON benchmark/sps.py --env-id "$ENV_ID" "${cleanrl[@]}" --rounds 2 --out "$OUT/sps_cleanrl.json"
+step sps_thesis "${limits[2]}" $PYTHON benchmark/sps.py --env-id "$ENV_ID" "${sps[@]}" --out "$OUT/sps_thesis.json"
+step runs_tgz "${limits[4]}" bash -c "cd '$work/runs' && tar czf '$OUT/runs.tgz' --exclude='*.pt' --exclude='*.cleanrl_model' --exclude=.lock */"
+step compare "${limits[4]}" bash -c compare
+sed -n '/^=== compare (exit 0)/,$p' "$OUT/gpu_check.log" | tail -n +2 | sed 's/^/        /' >> "$OUT/summary.txt"
 echo "summary: $OUT/summary.txt; every step's output: $OUT/gpu_check.log"
 ! grep -q '^FAILED' "$OUT/summary.txt"

@@ -1,15 +1,17 @@
 """Steps per second of both training scripts against envpool's own ceiling, in one command.
 
-For each script: a whole iteration, the rollout alone and the update alone (from the timings the
-scripts' `main` returns), plus raw envpool with random actions at the same `num_envs` (the rollout's
-ceiling). Each measurement runs in a fresh child process, so peak host memory (RSS) and peak GPU
-memory are that measurement's own. The first `--warmup` iterations are dropped; medians of the rest.
+Each script is measured as a user runs it: started from the command line in its own process (in a
+throw-away folder), for `--warmup` + `--iterations` iterations. Its whole-iteration figure is read from
+its own event file, the wall time between consecutive `charts/SPS` events over the measured iterations
+(so it includes everything a run does each iteration: logging, checkpoints); the rollout and the update
+are the `charts/rollout_time` and `charts/update_time` it logs. Raw envpool with random actions at the
+same `num_envs` (the rollout's ceiling) runs in a child process of its own. Rates are steps over the
+seconds of all measured iterations together, as a run's SPS is; peak host memory (RSS) is each process's own.
 
     uv run python benchmark/sps.py                 # small CPU settings: 8 envs x 128 steps, 4 x 4
     uv run python benchmark/sps.py --thesis        # thesis settings: 256 x 256, 8 epochs x 8 minibatches
 """
 
-import contextlib
 import importlib
 import json
 import multiprocessing as mp
@@ -17,12 +19,14 @@ import os
 import platform
 import resource
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
 from dataclasses import asdict, dataclass
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # the training scripts
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)  # the training scripts
 SCRIPTS = {"ppo": "ppo_atari_envpool.py", "p3o": "p3o_atari_envpool.py"}
 
 
@@ -43,7 +47,8 @@ class Args:
     iterations: int = 5
     """measured iterations per script (the median is reported)"""
     warmup: int = 1
-    """iterations run first and not counted"""
+    """iterations run first and not counted (at least 1: a measured iteration is timed from the end of the one
+    before it)"""
     cuda: bool = True
     """train on the GPU when there is one"""
     scripts: tuple[str, ...] = ("ppo", "p3o")
@@ -63,24 +68,37 @@ def _load(name: str):
     return importlib.import_module(SCRIPTS[name][: -len(".py")])
 
 
-def _measure_script(name: str, settings: dict, warmup: int, iterations: int, cuda: bool, queue) -> None:
-    import torch
+def _measure_script(name: str, settings: dict, warmup: int, iterations: int, cuda: bool) -> dict:
+    """Run the script from the command line as a user does and read its own event file back."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    started = time.time()
-    module = _load(name)
     batch = settings["num_envs"] * settings["num_steps"]
-    args = module.Args(**settings, total_timesteps=batch * (warmup + iterations), cuda=cuda, seed=1, eval_episodes=0)
-    with tempfile.TemporaryDirectory() as tmp, open(os.devnull, "w") as devnull:
-        os.chdir(tmp)  # the run's event file goes to a throw-away folder
-        with contextlib.redirect_stdout(devnull):
-            timings = module.main(args)
-    timings["iteration_s"] = [r + u for r, u in zip(timings["rollout_s"], timings["update_s"], strict=True)]
-    result = {key: statistics.median(batch / s for s in values[warmup:]) for key, values in timings.items()}
-    result = {key.replace("_s", "_sps"): value for key, value in result.items()}
-    result["peak_rss_mb"] = _peak_rss_mb()
-    result["started"] = started  # unix time, so the order of the measurements can be checked
-    result["peak_gpu_mb"] = torch.cuda.max_memory_allocated() / 2**20 if torch.cuda.is_available() else None
-    queue.put(result)
+    cmd = [sys.executable, os.path.join(ROOT, SCRIPTS[name])]
+    cmd += [f"--{key.replace('_', '-')}={value}" for key, value in settings.items()]
+    cmd += [f"--total-timesteps={batch * (warmup + iterations)}", "--seed=1", "--eval-episodes=0", "--run-name=sps"]
+    cmd += [] if cuda else ["--no-cuda"]
+    started = time.time()
+    with tempfile.TemporaryDirectory() as tmp:
+        with open(f"{tmp}/out.log", "w") as log:
+            proc = subprocess.Popen(cmd, cwd=tmp, stdout=log, stderr=subprocess.STDOUT)
+            _, status, usage = os.wait4(proc.pid, 0)  # this process's own peak memory
+        output = open(f"{tmp}/out.log").read().splitlines()
+        if os.waitstatus_to_exitcode(status) != 0:
+            sys.exit(f"error: {SCRIPTS[name]} failed during the measurement: {(output or ['no output'])[-1]}")
+        events = EventAccumulator(f"{tmp}/runs/sps", size_guidance={"scalars": 0})
+        events.Reload()
+        ends = [e.wall_time for e in events.Scalars("charts/SPS")]
+        rollout = [e.value for e in events.Scalars("charts/rollout_time")][warmup:]
+        update = [e.value for e in events.Scalars("charts/update_time")][warmup:]
+    measured = batch * iterations
+    return {
+        "iteration_sps": measured / (ends[-1] - ends[warmup - 1]),
+        "rollout_sps": measured / sum(rollout),
+        "update_sps": measured / sum(update),
+        "peak_rss_mb": usage.ru_maxrss / 1024,  # Linux reports KiB
+        "started": started,  # unix time, so the order of the measurements can be checked
+        "device": next(line for line in output if line.startswith("device: "))[len("device: ") :],
+    }
 
 
 def _measure_raw_env(settings: dict, warmup: int, iterations: int, queue) -> None:
@@ -91,18 +109,14 @@ def _measure_raw_env(settings: dict, warmup: int, iterations: int, queue) -> Non
     n, steps = settings["num_envs"], settings["num_steps"]
     actions = np.random.default_rng(0).integers(0, envs.action_space.n, size=(steps, n)).astype(np.int32)
     envs.reset()
-    rates = []
+    seconds = []
     for _ in range(warmup + iterations):
         start = time.perf_counter()
         for t in range(steps):
             envs.step(actions[t])
-        rates.append(n * steps / (time.perf_counter() - start))
+        seconds.append(time.perf_counter() - start)
     envs.close()
-    queue.put({"rollout_sps": statistics.median(rates[warmup:]), "peak_rss_mb": _peak_rss_mb()})
-
-
-def _median(values):
-    return None if values[0] is None else statistics.median(values)
+    queue.put({"rollout_sps": n * steps * iterations / sum(seconds[warmup:]), "peak_rss_mb": _peak_rss_mb()})
 
 
 def _in_child(target, *args):
@@ -118,8 +132,8 @@ def _in_child(target, *args):
 def main(args: Args) -> dict:
     if args.thesis:
         args.num_envs, args.num_steps, args.num_minibatches, args.update_epochs = 256, 256, 8, 8
-    if args.iterations < 1 or args.warmup < 0 or args.rounds < 1:
-        sys.exit("error: --iterations and --rounds must be at least 1 and --warmup at least 0.")
+    if args.iterations < 1 or args.warmup < 1 or args.rounds < 1:
+        sys.exit("error: --iterations, --warmup and --rounds must be at least 1.")
     unknown = set(args.scripts) - set(SCRIPTS)
     if unknown:
         sys.exit(f"error: unknown script(s) {sorted(unknown)}; choose from {sorted(SCRIPTS)}.")
@@ -132,35 +146,36 @@ def main(args: Args) -> dict:
     }
     _load("ppo").Args(**settings, total_timesteps=args.num_envs * args.num_steps)  # its checks refuse bad sizes
 
-    import torch
+    import torch  # its version for the report; the parent never touches the GPU
 
-    device = torch.cuda.get_device_name(0) if args.cuda and torch.cuda.is_available() else platform.processor()
     print(
         f"{args.env_id}: {args.num_envs} envs x {args.num_steps} steps, {args.update_epochs} epochs x "
         f"{args.num_minibatches} minibatches; {args.warmup} warm-up + {args.iterations} measured iterations, "
-        f"{args.rounds} round(s); "
-        f"{device or 'CPU'}, {os.cpu_count()} CPU cores, torch {torch.__version__}",
+        f"{args.rounds} round(s); {platform.processor() or 'CPU'}, {os.cpu_count()} CPU cores, "
+        f"torch {torch.__version__}",
         flush=True,
     )
     results = {"raw_env": _in_child(_measure_raw_env, settings, args.warmup, args.iterations)}
     rounds = {name: [] for name in args.scripts}
     for r in range(args.rounds):
         for name in args.scripts if r % 2 == 0 else reversed(args.scripts):
-            rounds[name].append(_in_child(_measure_script, name, settings, args.warmup, args.iterations, args.cuda))
+            rounds[name].append(_measure_script(name, settings, args.warmup, args.iterations, args.cuda))
     for name, measured in rounds.items():
-        results[name] = {key: _median([m[key] for m in measured]) for key in measured[0] if key != "started"}
+        numbers = [key for key in measured[0] if key not in ("started", "device")]
+        results[name] = {key: statistics.median(m[key] for m in measured) for key in numbers}
         results[name]["rounds"] = measured
+    device = rounds[args.scripts[0]][0]["device"]
+    print(f"device: {device}")
 
     raw = results["raw_env"]["rollout_sps"]
-    print("\n| what | iteration steps/s | rollout steps/s | update steps/s | peak RSS MB | peak GPU MB |")
-    print("|---|---|---|---|---|---|")
-    print(f"| raw envpool, random actions | | {raw:,.0f} | | {results['raw_env']['peak_rss_mb']:,.0f} | |")
+    print("\n| what | iteration steps/s | rollout steps/s | update steps/s | peak RSS MB |")
+    print("|---|---|---|---|---|")
+    print(f"| raw envpool, random actions | | {raw:,.0f} | | {results['raw_env']['peak_rss_mb']:,.0f} |")
     for name in args.scripts:
         r = results[name]
-        gpu = f"{r['peak_gpu_mb']:,.0f}" if r["peak_gpu_mb"] is not None else "-"
         print(
             f"| {SCRIPTS[name]} | {r['iteration_sps']:,.0f} | {r['rollout_sps']:,.0f} | "
-            f"{r['update_sps']:,.0f} | {r['peak_rss_mb']:,.0f} | {gpu} |"
+            f"{r['update_sps']:,.0f} | {r['peak_rss_mb']:,.0f} |"
         )
     ratios = {}
     for name in args.scripts:

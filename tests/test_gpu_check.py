@@ -1,19 +1,21 @@
-"""benchmark/gpu_check.sh, the prepared GPU command, rehearsed on the CPU at tiny sizes: every step runs and
-is read back, a broken step is named in one line, and the scripts train without imageio_ffmpeg (the GPU
-bundle carries it without its ffmpeg)."""
+"""benchmark/gpu_check.sh, the prepared GPU command, rehearsed on the CPU at tiny sizes: both real runs and
+sps.py run and are read back and compared, a broken step is named in one line, and the scripts train without
+imageio_ffmpeg (the GPU bundle carries it without its ffmpeg)."""
 
 import json
 import math
 import os
 import subprocess
 import sys
+import tarfile
 
 import pytest
 
-from helpers import ROOT
+from helpers import ROOT, scalars
 
 CHECK = os.path.join(ROOT, "benchmark", "gpu_check.sh")
-STEPS = ["environment", "tiny_ppo", "read_back_ppo", "tiny_p3o", "read_back_p3o", "sps_thesis", "sps_cleanrl"]
+STEPS = ["environment", "run_ppo", "read_back_ppo", "run_p3o", "read_back_p3o", "sps_thesis", "runs_tgz", "compare"]
+FILES = {"summary.txt", "gpu_check.log", "run_ppo.json", "run_p3o.json", "sps_thesis.json", "runs.tgz"}
 LIMIT = 1500  # seconds the rehearsal may take
 pytestmark = pytest.mark.timeout(LIMIT + 60)  # above pyproject's 900 s per test, which would cut it first
 
@@ -21,6 +23,11 @@ pytestmark = pytest.mark.timeout(LIMIT + 60)  # above pyproject's 900 s per test
 def gpu_check(out, **knobs):
     env = os.environ | {"REHEARSAL": "1", "PYTHON": sys.executable, "OUT": str(out)} | knobs
     return subprocess.run(["bash", CHECK], cwd=out.parent, env=env, capture_output=True, text=True, timeout=LIMIT)
+
+
+def summary_steps(out):
+    """The summary's step lines (the comparison's lines under them are indented)."""
+    return [line for line in (out / "summary.txt").read_text().splitlines() if not line.startswith(" ")]
 
 
 @pytest.fixture(scope="module")
@@ -32,50 +39,65 @@ def rehearsal(tmp_path_factory):
 def test_every_step_runs_and_the_outputs_fit_what_the_device_tool_brings_back(rehearsal):
     out, proc = rehearsal
     assert proc.returncode == 0, proc.stdout + proc.stderr[-3000:]
-    summary = (out / "summary.txt").read_text().splitlines()
-    assert [line.split()[1] for line in summary] == STEPS
-    assert all(line.startswith("ok      ") for line in summary), summary
+    steps = summary_steps(out)
+    assert [line.split()[1] for line in steps] == STEPS
+    assert all(line.startswith("ok      ") for line in steps), steps
     # at most 8 files come back from a device call: these six, and no run folder among them
-    files = {"summary.txt", "gpu_check.log", "tiny_ppo.json", "tiny_p3o.json", "sps_thesis.json", "sps_cleanrl.json"}
-    assert set(os.listdir(out)) == files
+    assert set(os.listdir(out)) == FILES
     log = (out / "gpu_check.log").read_text()
     assert all(f"=== {step} (exit 0): " in log for step in STEPS)
 
 
 @pytest.mark.parametrize("algo", ["ppo", "p3o"])
-def test_the_tiny_runs_are_read_back(rehearsal, algo):
+def test_the_runs_are_read_back(rehearsal, algo):
     out, _ = rehearsal
-    tiny = json.loads((out / f"tiny_{algo}.json").read_text())
-    assert tiny["device"] == "cpu" and tiny["eval_games"] == 1 and math.isfinite(tiny["eval_mean"])
-    assert len(tiny["losses"]["losses/value_loss"]) == 2 and all(
-        map(math.isfinite, tiny["losses"]["losses/value_loss"])
-    )
-    assert len(tiny["sps"]) == 2 and all(s > 0 for s in tiny["sps"])
+    run = json.loads((out / f"run_{algo}.json").read_text())
+    assert run["device"] == "cpu" and run["eval_games"] == 1 and math.isfinite(run["eval_mean"])
+    assert run["steps"] == 384 and run["iterations"] == 3 and len(run["logged_sps"]) == 3
+    assert run["steady_sps"] > 0 and len(run["rollout_s"]) == 3 and all(s > 0 for s in run["update_s"])
+    assert len(run["losses"]["losses/value_loss"]) == 3 and all(map(math.isfinite, run["losses"]["losses/value_loss"]))
+    assert set(run["train_return_last_quarter"]) == {"mean", "games"}
 
 
-@pytest.mark.parametrize("name", ["sps_thesis", "sps_cleanrl"])
-def test_both_speed_measurements_are_sps_json_with_two_rounds(rehearsal, name):
+def test_the_archive_holds_both_runs_without_checkpoints(rehearsal, tmp_path):
     out, _ = rehearsal
-    report = json.loads((out / f"{name}.json").read_text())
-    assert report["settings"]["rounds"] == 2 and report["results"]["raw_env"]["rollout_sps"] > 0
+    with tarfile.open(out / "runs.tgz") as archive:
+        archive.extractall(tmp_path, filter="data")
     for algo in ("ppo", "p3o"):
-        assert len(report["results"][algo]["rounds"]) == 2 and report["results"][algo]["iteration_sps"] > 0
-    assert "p3o/ppo_iteration" in report["ratios"]
+        run = tmp_path / f"Breakout-v5__{algo}_atari_envpool__1"
+        names = os.listdir(run)
+        assert {"eval.json", "train.log"} <= set(names) and ".lock" not in names
+        assert not any(n.endswith((".pt", ".cleanrl_model")) for n in names)
+        assert [step for step, _ in scalars(str(run))["charts/SPS"]] == [128, 256, 384]
+        assert "iteration 3/3" in (run / "train.log").read_text()
+
+
+def test_sps_and_the_comparison(rehearsal):
+    out, _ = rehearsal
+    report = json.loads((out / "sps_thesis.json").read_text())
+    assert report["settings"]["rounds"] == 1 and report["results"]["raw_env"]["rollout_sps"] > 0
+    assert report["settings"]["num_envs"] == 4 and report["settings"]["num_steps"] == 32  # the runs' sizes
+    for algo in ("ppo", "p3o"):
+        assert report["results"][algo]["iteration_sps"] > 0
+    compared = [line.strip() for line in (out / "summary.txt").read_text().splitlines() if line.startswith(" ")]
+    assert [line.split(":")[0] for line in compared] == ["ppo", "p3o", "p3o/ppo"]
+    for algo, line in zip(("ppo", "p3o"), compared, strict=False):
+        run = json.loads((out / f"run_{algo}.json").read_text())["steady_sps"]
+        assert f"run {run:,.0f} steps/s" in line and "x raw envpool" in line and "x the run" in line
 
 
 def test_a_failing_step_is_named_with_its_reason_in_one_line(tmp_path):
     proc = gpu_check(tmp_path / "out", ENV_ID="Qbertt-v5")
     assert proc.returncode == 1
-    summary = (tmp_path / "out" / "summary.txt").read_text().splitlines()
-    assert [line.split()[1] for line in summary] == STEPS and summary[0].startswith("ok      environment")
-    for line in summary[1:]:
-        assert line.startswith("FAILED  "), line
-    for step in ("tiny_ppo", "tiny_p3o", "sps_thesis", "sps_cleanrl"):
-        (line,) = [x for x in summary if x.split()[1] == step]
-        assert "exit 1: error: --env-id Qbertt-v5 is not an envpool environment. Did you mean Qbert-v5" in line
+    steps = summary_steps(tmp_path / "out")
+    assert [line.split()[1] for line in steps] == STEPS and steps[0].startswith("ok      environment")
+    failed = {line.split()[1]: line for line in steps[1:]}
+    assert all(line.startswith("FAILED  ") for line in failed.values()), steps
+    for step in ("run_ppo", "run_p3o", "sps_thesis"):
+        assert "exit 1: error: --env-id Qbertt-v5 is not an envpool environment. Did you mean Qbert-v5" in failed[step]
     for step in ("read_back_ppo", "read_back_p3o"):
-        (line,) = [x for x in summary if x.split()[1] == step]
-        assert line.endswith("exit 1: nothing to read back: the tiny run wrote no eval.json")
+        assert failed[step].endswith("exit 1: nothing to read back: the run wrote no eval.json")
+    assert "run_ppo.json, run_p3o.json missing" in failed["compare"]
 
 
 def test_the_scripts_train_without_imageio_ffmpeg(tmp_path):

@@ -38,7 +38,8 @@ def test_sps_measures_both_scripts_over_alternating_rounds(tmp_path):
 
 def test_sps_refuses_bad_settings(tmp_path):
     for bad, message in [
-        (["--rounds", "0"], "error: --iterations and --rounds must be at least 1 and --warmup at least 0."),
+        (["--warmup", "0"], "error: --iterations, --warmup and --rounds must be at least 1."),
+        (["--rounds", "0"], "error: --iterations, --warmup and --rounds must be at least 1."),
         (["--scripts", "a2c"], "error: unknown script(s) ['a2c']; choose from ['p3o', 'ppo']."),
         (
             ["--num-envs", "3", "--num-minibatches", "5"],
