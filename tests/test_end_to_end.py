@@ -29,6 +29,8 @@ COMMON_TAGS = [
     "charts/episodic_length",
     "charts/learning_rate",
     "charts/SPS",
+    "charts/rollout_time",
+    "charts/update_time",
     "losses/value_loss",
     "losses/policy_loss",
     "losses/entropy",
