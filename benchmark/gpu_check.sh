@@ -4,18 +4,20 @@
 # 8 epochs x 8 minibatches) for 1M steps, each read back (the device it trained on, finite losses, its
 # evaluation, its steady-state steps/s and its training return: a learning point per script), then
 # benchmark/sps.py at the same sizes (raw envpool, the ceiling) and a comparison of the three. Each step runs
-# under its own time limit, set from what the first GPU visit measured with about 20% margin: 540 s (9
-# minutes) at most together. Writes six files to OUT (the device tool brings back at most 8): summary.txt (one line per step,
-# "ok" or "FAILED" with the reason, then the comparison), gpu_check.log (every step's output), run_ppo.json and
-# run_p3o.json (the read-backs), sps_thesis.json (sps.py's own JSON) and runs.tgz (both runs' event files,
-# eval.json and printed logs, without checkpoints or models, in folders named as the scripts name a seed-1 run).
+# under its own time limit, set from what the first GPU visit measured with about 20% margin, and within one
+# budget for the whole check, 540 s (9 minutes): a step gets at most what is left of it. Writes six files to
+# OUT (the device tool brings back at most 8): summary.txt (one line per step, "ok" or "FAILED" with the
+# reason, then the comparison), gpu_check.log (every step's output), run_ppo.json and run_p3o.json (the
+# read-backs), sps_thesis.json (sps.py's own JSON) and runs.tgz (both runs' event files, eval.json and printed
+# logs, without checkpoints or models, in folders named as the scripts name a seed-1 run).
 #
 # On the GPU machine, from the project root (../shared/gpu/README.md: the bundle is built here once with
 # `bash ../shared/gpu/envpool-bundle.sh` and carried as .gpu):
 #   tar xzf .gpu/site.tgz -C /tmp && export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1 && bash benchmark/gpu_check.sh
 # Rehearsal on the CPU, the same steps at tiny sizes (tests/test_gpu_check.py runs it):
 #   REHEARSAL=1 PYTHON="uv run python" OUT=runs/gpu_rehearsal bash benchmark/gpu_check.sh
-# Knobs: OUT ($OUT, else runs/gpu_check), PYTHON (python3), ENV_ID (Breakout-v5), REHEARSAL (0).
+# Knobs: OUT ($OUT, else runs/gpu_check), PYTHON (python3), ENV_ID (Breakout-v5), REHEARSAL (0), BUDGET (seconds
+# for the whole check: 540, 1500 in the rehearsal).
 # Exit status 0 when every step is ok, else 1.
 set -uo pipefail
 
@@ -36,22 +38,32 @@ if [ "$REHEARSAL" = 1 ]; then
     run=(--num-envs 4 --num-steps 32 --num-minibatches 2 --update-epochs 1 --total-timesteps 384 --eval-episodes 1)
     sps=(--num-envs 4 --num-steps 32 --num-minibatches 2 --update-epochs 1 --iterations 2 --warmup 1)  # the runs' sizes
     limits=(120 300 300 120 60)  # environment, each run, sps.py, each read-back, the archive and the comparison
+    budget=${BUDGET:-1500}
 else
     device="cuda ("
     # 15 iterations of 65,536 steps: about 110 s at the 8,600-9,400 steps/s a real P3O run logged there
     run=(--total-timesteps 1000000 --eval-episodes 2)
     sps=(--thesis --iterations 3 --warmup 1)  # about 130 s: raw envpool, then each script started as a user does
-    # measured: 10 s; about 130 s a run (start-up and evaluation included); about 130 s; 1 s; (new); (new)
-    limits=(20 160 150 15 10)  # 540 s at most with the archive and the comparison
+    # measured: 10 s; about 130 s a run (start-up and evaluation included); about 130 s; 1 s; under 1 s
+    limits=(60 170 160 15 10)
+    budget=${BUDGET:-540}  # the whole check: a step gets at most what is left of it, so the call ends within 9 minutes
 fi
 
-# step NAME SECONDS COMMAND...: COMMAND under `timeout`, its output appended to gpu_check.log, a summary line
+# step NAME SECONDS COMMAND...: COMMAND under `timeout` (SECONDS, or what is left of the budget if less), its output
+# appended to gpu_check.log, a summary line
+deadline=$(($(date +%s) + budget))
 step() {
     local name=$1 limit=$2 start rc why
     shift 2
     start=$(date +%s)
-    timeout "$limit" "$@" > "$work/step.log" 2>&1
-    rc=$?
+    if [ "$limit" -gt $((deadline - start)) ]; then limit=$((deadline - start)); fi
+    if [ "$limit" -gt 0 ]; then
+        timeout "$limit" "$@" > "$work/step.log" 2>&1
+        rc=$?
+    else
+        echo "no time left of the check's $budget s" > "$work/step.log"
+        rc=1
+    fi
     { echo "=== $name (exit $rc): $*"; cat "$work/step.log"; } >> "$OUT/gpu_check.log"
     if [ "$rc" = 0 ]; then
         echo "ok      $name ($(($(date +%s) - start)) s)" | tee -a "$OUT/summary.txt"

@@ -128,3 +128,12 @@ def test_without_a_gpu_the_check_stops_at_the_environment_step(tmp_path):
     assert line.startswith("FAILED  environment (") and "exit 1: torch " in line and "finds no usable GPU" in line
     assert "nothing else ran" in proc.stdout
     assert sorted(os.listdir(tmp_path / "out")) == ["gpu_check.log", "summary.txt"]
+
+
+def test_no_step_runs_past_the_checks_budget(tmp_path):
+    """Every step's limit is cut to what is left of the whole check's budget (540 s on the GPU machine, which must
+    bring back a result within its 10-minute call): with none left, the first step fails saying so."""
+    proc = gpu_check(tmp_path / "out", BUDGET="0")
+    assert proc.returncode == 1
+    (line,) = (tmp_path / "out" / "summary.txt").read_text().splitlines()
+    assert line.startswith("FAILED  environment (") and line.endswith("exit 1: no time left of the check's 0 s")
