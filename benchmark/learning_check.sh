@@ -11,7 +11,8 @@
 #
 # Order: seed 1 of every game, then seed 2, and so on. The two scripts of a (game, seed) run side by side,
 # one core each (OMP_NUM_THREADS=1), through benchmark/p3o_vs_ppo.sh (which gives P3O the thesis's alpha of
-# the game), about 2.5-3 hours a pair on 2 cores. Runs (checkpoints, logs) go under runs/<group>/ in the
+# the game): 2.5-3 hours a pair on 2 cores of the machine seeds 1-3 ran on, 4-5.5 hours on a slower one
+# (OUT/hours.md has every run's). Runs (checkpoints, logs) go under runs/<group>/ in the
 # current folder, as the scripts' do. After each pair its small outputs (event files, eval.json, the
 # training log) are copied to OUT/runs/ to be committed and the tables remade; calling this again skips
 # pairs whose outputs are there and resumes unfinished runs from their checkpoints.
