@@ -4,18 +4,13 @@ import contextlib
 import ctypes
 import difflib
 import fcntl
-import glob
 import importlib.util
-import json
-import math
+import io
 import os
 import random
-import shutil
 import signal
-import socket
 import sys
 import time
-import uuid
 from dataclasses import dataclass, field, fields, replace
 
 import envpool
@@ -23,10 +18,10 @@ import numpy as np
 import torch
 import torch.nn as nn
 import torch.optim as optim
+import tyro
 from torch.distributions.categorical import Categorical
 
 ALGORITHM = "p3o"  # written into checkpoints and model files, checked when they are loaded
-ABLATION = None  # the change benchmark/p3o_ablation.py makes (it sets this), also written into checkpoints
 
 
 @dataclass
@@ -37,6 +32,7 @@ class Args:
     """seed of the experiment: python, numpy, torch and envpool are seeded with it"""
     torch_deterministic: bool = True
     """if toggled, `torch.backends.cudnn.deterministic=True`"""
+    # Run flags: where and how the run goes (a resume keeps the run's unless they are given again), not what it is
     cuda: bool = True
     """if toggled, cuda is used when available (the script falls back to the CPU without a GPU)"""
     save_model: bool = False
@@ -44,18 +40,11 @@ class Args:
     run_name: str | None = None
     """the run folder under `runs/` (default: `{env_id}__{exp_name}__{seed}__{unix_time}`); one process at a time"""
     checkpoint_every: int = 10
-    """write `runs/{run_name}/checkpoint.pt` every this many iterations (0: only at the end and on a signal)"""
+    """write `runs/{run_name}/checkpoint.pt` every this many iterations (0: at the start, the end and a signal)"""
     resume: str | None = None
-    """continue the run of this checkpoint (a `checkpoint.pt` or its run folder) with its saved arguments; run flags
-    (--save-model, --eval-episodes, --capture-video, --track, ...) keep the run's values unless given again"""
+    """continue the run of this checkpoint (or run folder), with its arguments (run flags: unless given again)"""
     auto_resume: bool = False
     """continue `runs/{run_name}` if it holds a checkpoint, else start it (for sweeps and requeued jobs)"""
-    eval_episodes: int = 10
-    """after training, play this many full games (each its own environment and seed) and log their returns"""
-    eval_greedy: bool = False
-    """evaluate with the most probable action instead of sampling from the policy"""
-    capture_video: bool = False
-    """write each evaluation game as an MP4 (colour, 210x160, 15 frames/s) to `runs/{run_name}/videos/`"""
     track: bool = False
     """if toggled, this experiment will be tracked with Weights and Biases (needs the `wandb` extra)"""
     wandb_project_name: str = "p3o-atari"
@@ -113,13 +102,15 @@ class Args:
         self.batch_size = self.num_envs * self.num_steps
         self.minibatch_size = self.batch_size // max(self.num_minibatches, 1)
         self.num_iterations = self.total_timesteps // max(self.batch_size, 1)
-        if not resuming(self):  # bad input fails where it is parsed; a resume's, with its checkpoint's arguments
-            check_args(self)
+        # bad input stops here, before any environment starts: the flag and its value in one sentence, exit status 1
+        if self.resume is None:  # a resume's arguments: once merged with its checkpoint's (open_run)
+            for problem in problems(self):
+                sys.exit(f"error: {problem}")
 
 
 def make_env(env_id: str, num_envs: int, seed: int, render_mode: str | None = None):
     """envpool Atari as in CleanRL: episodic life, clipped rewards, 4 stacked 84x84 grey frames.
-    envpool seeds environment i with seed + i. `render_mode="rgb_array"` adds colour frames for videos."""
+    envpool seeds environment i with seed + i. `render_mode="rgb_array"` adds colour frames (for videos)."""
     kwargs = dict(episodic_life=True, reward_clip=True, seed=seed, render_mode=render_mode)
     return envpool.make(env_id, env_type="gymnasium", num_envs=num_envs, **kwargs)
 
@@ -240,666 +231,374 @@ def explained_variance(values, returns, valid):
     return torch.where(var_y == 0, torch.nan, 1 - (y_true - y_pred).var(unbiased=False) / var_y)
 
 
-def main(args: Args, cli: list[str] | None = None) -> None:
-    """Train. A resume parses `cli`, the command line `args` came from, again over the checkpoint's arguments."""
-    with contextlib.ExitStack() as run:  # the run folder's lock, the writer, the envs: released however it ends
-        args, run_dir, checkpoint = run.enter_context(open_run(args, cli))  # a resume's args are its checkpoint's
-        if checkpoint and checkpoint["finished"]:
-            print(f"{run_dir} already finished ({checkpoint['global_step']} steps); nothing to do.")
-            return
-        start_iteration = checkpoint["iteration"] if checkpoint else 0
+def main(args: Args, cli: list[str] | None = None, run: contextlib.ExitStack | None = None) -> None:
+    """Train. A resumed run takes its checkpoint's arguments, with `cli` (the command line) parsed over them."""
+    if run is None:  # `run` holds the run folder's lock, the writer and the envs: released however main ends
+        with contextlib.ExitStack() as run:
+            return main(args, cli, run)
+    args, run_dir, checkpoint, stop = open_run(run, args, cli)  # `stop`: the signals that ask the run to stop
+    if checkpoint and checkpoint["finished"]:
+        return say(f"{run_dir} already finished ({checkpoint['global_step']} steps); nothing to do.")
+    start_iteration = checkpoint["iteration"] if checkpoint else 0
+    device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
+    device_name = say_device(device, args.cuda)
 
-        device = torch.device("cuda" if torch.cuda.is_available() and args.cuda else "cpu")
-        device_name = say_device(device, args.cuda)
+    # TRY NOT TO MODIFY: seeding. envpool cannot save game states, so a resumed run plays fresh games with
+    # fresh random numbers: it is seeded past the environment seeds the run has used so far.
+    seed = args.seed + start_iteration * args.num_envs
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+    torch.backends.cudnn.deterministic = args.torch_deterministic
+    torch.set_float32_matmul_precision("high" if device.type == "cuda" else "highest")  # TF32 matmuls on a GPU
 
-        writer = run.enter_context(open_writer(args, run_dir, checkpoint, device_name))
+    # env setup
+    envs = run.enter_context(contextlib.closing(make_env(args.env_id, args.num_envs, seed)))
+    # channels_last: the same network, with faster convolutions on the CPU and the GPU (benchmark/README.md)
+    agent = Agent(int(envs.action_space.n)).to(device, memory_format=torch.channels_last)
+    optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=device.type == "cuda")
+    if checkpoint:
+        agent.load_state_dict(checkpoint["model_state_dict"])
+        optimizer.load_state_dict(checkpoint["optimizer_state_dict"])
+        say(f"resuming {run_dir} after iteration {start_iteration} ({checkpoint['global_step']} steps)")
+    writer = run.enter_context(open_writer(args, run_dir, checkpoint, device_name, agent, optimizer))
 
-        # TRY NOT TO MODIFY: seeding. envpool cannot save game states, so a resumed run plays fresh games with
-        # fresh random numbers: it is seeded past the environment seeds the run has used so far.
-        seed = args.seed + start_iteration * args.num_envs
-        random.seed(seed)
-        np.random.seed(seed)
-        torch.manual_seed(seed)
-        torch.backends.cudnn.deterministic = args.torch_deterministic
-        if device.type == "cuda":
-            torch.set_float32_matmul_precision("high")  # TF32 matmuls (cuDNN convolutions use TF32 by default)
+    # ALGO Logic: Storage setup. Frames stay uint8 (a quarter of float32's memory); rewards and dones are
+    # gathered on the host, where envpool returns them, and sent to the device once per rollout.
+    T, N = args.num_steps, args.num_envs
+    obs = torch.zeros((T, N) + envs.observation_space.shape, dtype=torch.uint8, device=device)
+    actions = torch.zeros((T, N), dtype=torch.long, device=device)
+    logprobs = torch.zeros((T, N), device=device)
+    values = torch.zeros((T, N), device=device)
+    rewards_np = np.zeros((T, N), dtype=np.float32)
+    dones_np = np.zeros((T, N), dtype=np.float32)
+    state_importances = torch.zeros((T + 1, N), device=device)  # SI(s_0) .. SI(s_T)
+    episode_returns = np.zeros(N)  # full-game statistics (all lives)
+    episode_lengths = np.zeros(N, dtype=np.int64)
+    last_return = float("nan")
 
-        # env setup
-        envs = run.enter_context(contextlib.closing(make_env(args.env_id, args.num_envs, seed)))
-        # channels_last: the same network, with faster convolutions on the CPU and the GPU (benchmark/README.md)
-        agent = Agent(int(envs.action_space.n)).to(device, memory_format=torch.channels_last)
-        optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=device.type == "cuda")
-        if checkpoint:
-            agent.load_state_dict(checkpoint["model_state_dict"])
-            optimizer.load_state_dict(checkpoint["optimizer_state_dict"])
-            print(f"resuming {run_dir} after iteration {start_iteration} ({checkpoint['global_step']} steps)")
-        stop_signal = catch_stop_signals()
+    # TRY NOT TO MODIFY: start the game
+    global_step = start_global_step = start_iteration * args.batch_size
+    start_time = time.time()
+    next_obs_np, _ = envs.reset()
+    next_obs = torch.as_tensor(next_obs_np, device=device)
+    next_done_np = np.zeros(N, dtype=bool)
 
-        # ALGO Logic: Storage setup. Frames stay uint8 (a quarter of float32's memory); rewards and dones are
-        # gathered on the host, where envpool returns them, and sent to the device once per rollout.
-        T, N = args.num_steps, args.num_envs
-        obs = torch.zeros((T, N) + envs.observation_space.shape, dtype=torch.uint8, device=device)
-        actions = torch.zeros((T, N), dtype=torch.long, device=device)
-        logprobs = torch.zeros((T, N), device=device)
-        values = torch.zeros((T, N), device=device)
-        rewards_np = np.zeros((T, N), dtype=np.float32)
-        dones_np = np.zeros((T, N), dtype=np.float32)
-        state_importances = torch.zeros((T + 1, N), device=device)  # SI(s_0) .. SI(s_T)
-        # full-game statistics (all lives)
-        episode_returns, episode_lengths, last_return = np.zeros(N), np.zeros(N, dtype=np.int64), float("nan")
+    for iteration in range(start_iteration + 1, args.num_iterations + 1):
+        # Annealing the rate if instructed to do so.
+        if args.anneal_lr:
+            frac = 1.0 - (iteration - 1.0) / args.num_iterations
+            lrnow = frac * args.learning_rate
+            optimizer.param_groups[0]["lr"] = lrnow
 
-        # TRY NOT TO MODIFY: start the game
-        global_step = start_global_step = start_iteration * args.batch_size
-        start_time = time.time()
-        next_obs_np, _ = envs.reset()
-        next_obs = torch.as_tensor(next_obs_np, device=device)
-        next_done_np = np.zeros(N, dtype=bool)
+        iteration_start = time.perf_counter()
+        for step in range(0, T):
+            global_step += N
+            obs[step] = next_obs
+            dones_np[step] = next_done_np
 
-        for iteration in range(start_iteration + 1, args.num_iterations + 1):
-            # Annealing the rate if instructed to do so.
-            if args.anneal_lr:
-                frac = 1.0 - (iteration - 1.0) / args.num_iterations
-                lrnow = frac * args.learning_rate
-                optimizer.param_groups[0]["lr"] = lrnow
-
-            iteration_start = time.perf_counter()
+            # ALGO LOGIC: action logic
             with torch.inference_mode():
-                for step in range(0, T):
-                    global_step += N
-                    obs[step] = next_obs
-                    dones_np[step] = next_done_np
+                action, logprob, _, value, probs = agent.get_action_and_value(next_obs)
+                values[step] = value
+                state_importances[step] = state_importance(probs, value)
+                actions[step] = action
+                logprobs[step] = logprob
 
-                    # ALGO LOGIC: action logic
-                    action, logprob, _, value, probs = agent.get_action_and_value(next_obs)
-                    values[step] = value
-                    state_importances[step] = state_importance(probs, value)
-                    actions[step] = action
-                    logprobs[step] = logprob
+            # TRY NOT TO MODIFY: execute the game and log data.
+            next_obs_np, reward, terminations, truncations, info = envs.step(action.cpu().numpy())
+            next_done_np = np.logical_or(terminations, truncations)
+            rewards_np[step] = reward
+            next_obs = torch.as_tensor(next_obs_np, device=device)
 
-                    # TRY NOT TO MODIFY: execute the game and log data.
-                    next_obs_np, reward, terminations, truncations, info = envs.step(action.cpu().numpy())
-                    next_done_np = np.logical_or(terminations, truncations)
-                    rewards_np[step] = reward
-                    next_obs = torch.as_tensor(next_obs_np, device=device)
+            # a game is over when its last life is lost or it is truncated; returns are unclipped
+            episode_returns += info["reward"]
+            episode_lengths += 1
+            game_over = np.logical_or(info["terminated"].astype(bool), truncations)
+            for ret, length in zip(episode_returns[game_over], episode_lengths[game_over], strict=True):
+                writer.add_scalar("charts/episodic_return", ret, global_step)
+                writer.add_scalar("charts/episodic_length", length, global_step)
+                last_return = ret
+            episode_returns[game_over] = 0
+            episode_lengths[game_over] = 0
 
-                    # a game is over when its last life is lost or it is truncated; returns are unclipped
-                    episode_returns += info["reward"]
-                    episode_lengths += 1
-                    game_over = np.logical_or(info["terminated"].astype(bool), truncations)
-                    for ret, length in zip(episode_returns[game_over], episode_lengths[game_over], strict=True):
-                        writer.add_scalar("charts/episodic_return", ret, global_step)
-                        writer.add_scalar("charts/episodic_length", length, global_step)
-                        last_return = ret
-                    episode_returns[game_over], episode_lengths[game_over] = 0, 0
+        rollout_end = time.perf_counter()
+        rewards = torch.as_tensor(rewards_np, device=device)
+        dones = torch.as_tensor(dones_np, device=device)
+        next_done = torch.as_tensor(next_done_np, dtype=torch.float32, device=device)
+        # dones[t] = 1: envpool reset that game at step t, ignoring the action and giving reward 0, so the step is no
+        # decision: `valid` leaves it out of the losses, the advantage normalisation and the statistics (README).
+        valid = 1.0 - dones
 
-            rollout_end = time.perf_counter()
-            rewards = torch.as_tensor(rewards_np, device=device)
-            dones = torch.as_tensor(dones_np, device=device)
-            next_done = torch.as_tensor(next_done_np, dtype=torch.float32, device=device)
-            # envpool resets a finished episode on the next `step`, ignoring that step's action and returning
-            # reward 0: a step with dones[t] = 1 is no decision, so it is masked out of the losses, of advantage
-            # normalisation and of the statistics (README, "Known differences").
-            valid = 1.0 - dones
+        # bootstrap value if not done
+        with torch.no_grad():
+            next_value, next_probs = agent.get_value_and_probs(next_obs)
+            state_importances[T] = state_importance(next_probs, next_value)
+            all_betas = compute_betas(state_importances, args.ewma_alpha)  # beta(s_0) .. beta(s_T)
+            advantages = gbae(rewards, values, dones, next_value, next_done, all_betas, args.gamma, args.gae_lambda)
+            betas = all_betas[:T]
+            returns = advantages + values
 
-            # bootstrap value if not done
-            with torch.no_grad():
-                next_value, next_probs = agent.get_value_and_probs(next_obs)
-                state_importances[T] = state_importance(next_probs, next_value)
-                all_betas = compute_betas(state_importances, args.ewma_alpha)  # beta(s_0) .. beta(s_T)
-                advantages = gbae(rewards, values, dones, next_value, next_done, all_betas, args.gamma, args.gae_lambda)
-                betas = all_betas[:T]
-                returns = advantages + values
+        # flatten the batch
+        b_obs = obs.reshape((-1,) + envs.observation_space.shape)
+        b_logprobs = logprobs.reshape(-1)
+        b_actions = actions.reshape(-1)
+        b_advantages = advantages.reshape(-1)
+        b_returns = returns.reshape(-1)
+        b_values = values.reshape(-1)
+        b_valid = valid.reshape(-1)
+        b_betas = betas.reshape(-1)
 
-            # flatten the batch
-            b_obs = obs.reshape((-1,) + envs.observation_space.shape)
-            b_logprobs = logprobs.reshape(-1)
-            b_actions = actions.reshape(-1)
-            b_advantages = advantages.reshape(-1)
-            b_returns = returns.reshape(-1)
-            b_values = values.reshape(-1)
-            b_valid = valid.reshape(-1)
-            b_betas = betas.reshape(-1)
+        # Optimizing the policy and value network; statistics stay on the device until the end
+        clipfracs = []
+        finite = torch.ones((), dtype=torch.bool, device=device)  # every loss and gradient norm so far
+        for _epoch in range(args.update_epochs):
+            b_inds = torch.randperm(args.batch_size, device=device)
+            for start in range(0, args.batch_size, args.minibatch_size):
+                end = start + args.minibatch_size
+                mb_inds = b_inds[start:end]
+                mb_valid = b_valid[mb_inds]
 
-            # Optimizing the policy and value network; statistics stay on the device until the end
-            clipfracs = []
-            finite = torch.ones((), dtype=torch.bool, device=device)  # every loss and gradient norm so far
-            for _epoch in range(args.update_epochs):
-                b_inds = torch.randperm(args.batch_size, device=device)
-                for start in range(0, args.batch_size, args.minibatch_size):
-                    end = start + args.minibatch_size
-                    mb_inds = b_inds[start:end]
-                    mb_valid = b_valid[mb_inds]
+                _, newlogprob, entropy, newvalue, _ = agent.get_action_and_value(b_obs[mb_inds], b_actions[mb_inds])
+                logratio = newlogprob - b_logprobs[mb_inds]
+                ratio = logratio.exp()
 
-                    _, newlogprob, entropy, newvalue, _ = agent.get_action_and_value(b_obs[mb_inds], b_actions[mb_inds])
-                    logratio = newlogprob - b_logprobs[mb_inds]
-                    ratio = logratio.exp()
+                with torch.no_grad():
+                    # calculate approx_kl http://joschu.net/blog/kl-approx.html
+                    old_approx_kl = masked_mean(-logratio, mb_valid)
+                    approx_kl = masked_mean((ratio - 1) - logratio, mb_valid)
+                    clipfracs.append(masked_mean(((ratio - 1.0).abs() > args.clip_coef).float(), mb_valid))
 
-                    with torch.no_grad():
-                        # calculate approx_kl http://joschu.net/blog/kl-approx.html
-                        old_approx_kl = masked_mean(-logratio, mb_valid)
-                        approx_kl = masked_mean((ratio - 1) - logratio, mb_valid)
-                        clipfracs.append(masked_mean(((ratio - 1.0).abs() > args.clip_coef).float(), mb_valid))
+                mb_advantages = b_advantages[mb_inds]
+                if args.norm_adv:
+                    mb_advantages = normalize_advantages(mb_advantages, mb_valid)
 
-                    mb_advantages = b_advantages[mb_inds]
-                    if args.norm_adv:
-                        mb_advantages = normalize_advantages(mb_advantages, mb_valid)
+                # Policy loss
+                pg_loss1 = -mb_advantages * ratio
+                pg_loss2 = -mb_advantages * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)
+                pg_loss = masked_mean(torch.max(pg_loss1, pg_loss2), mb_valid)
 
-                    # Policy loss
-                    pg_loss1 = -mb_advantages * ratio
-                    pg_loss2 = -mb_advantages * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)
-                    pg_loss = masked_mean(torch.max(pg_loss1, pg_loss2), mb_valid)
+                # Value loss
+                mb_values, mb_returns, mb_betas = b_values[mb_inds], b_returns[mb_inds], b_betas[mb_inds]
+                v_loss = value_loss(
+                    newvalue, mb_values, mb_returns, mb_betas, mb_valid, args.clip_coef, args.clip_vloss
+                )
 
-                    # Value loss
-                    mb_values, mb_returns, mb_betas = b_values[mb_inds], b_returns[mb_inds], b_betas[mb_inds]
-                    v_loss = value_loss(
-                        newvalue, mb_values, mb_returns, mb_betas, mb_valid, args.clip_coef, args.clip_vloss
-                    )
+                entropy_loss = masked_mean(entropy, mb_valid)
+                loss = pg_loss - args.ent_coef * entropy_loss + v_loss * args.vf_coef
 
-                    entropy_loss = masked_mean(entropy, mb_valid)
-                    loss = pg_loss - args.ent_coef * entropy_loss + v_loss * args.vf_coef
+                optimizer.zero_grad()
+                loss.backward()
+                grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+                optimizer.step()
+                finite &= torch.isfinite(loss) & torch.isfinite(grad_norm)
 
-                    optimizer.zero_grad()
-                    loss.backward()
-                    grad_norm = nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
-                    optimizer.step()
-                    finite &= torch.isfinite(loss) & torch.isfinite(grad_norm)
+            if args.target_kl is not None and approx_kl.item() > args.target_kl:
+                break
 
-                if args.target_kl is not None and approx_kl.item() > args.target_kl:
-                    break
+        stop_if_not_finite(finite, agent, next_obs, iteration, run_dir)  # its check waits for the device
+        update_end = time.perf_counter()
 
-            stop_if_not_finite(finite, agent, next_obs, iteration, run_dir)  # its check waits for the device
-            update_end = time.perf_counter()
+        writer.add_scalar("losses/value_loss", v_loss.item(), global_step)
+        writer.add_scalar("losses/policy_loss", pg_loss.item(), global_step)
+        writer.add_scalar("losses/entropy", entropy_loss.item(), global_step)
+        writer.add_scalar("losses/old_approx_kl", old_approx_kl.item(), global_step)
+        writer.add_scalar("losses/approx_kl", approx_kl.item(), global_step)
+        writer.add_scalar("losses/clipfrac", torch.stack(clipfracs).mean().item(), global_step)
+        writer.add_scalar("losses/explained_variance", explained_variance(b_values, b_returns, b_valid), global_step)
+        writer.add_scalar("p3o/beta_mean", betas.mean().item(), global_step)
+        writer.add_scalar("p3o/beta_std", betas.std().item(), global_step)
+        writer.add_scalar("p3o/state_importance_mean", state_importances.mean().item(), global_step)
+        sps = int((global_step - start_global_step) / (time.time() - start_time))
+        writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
+        writer.add_scalar("charts/SPS", sps, global_step)
+        writer.add_scalar("charts/rollout_time", rollout_end - iteration_start, global_step)  # seconds (sps.py)
+        writer.add_scalar("charts/update_time", update_end - rollout_end, global_step)
+        writer.add_histogram("p3o/beta", betas, global_step)
+        writer.flush()
+        say(f"iteration {iteration}/{args.num_iterations} {global_step=} SPS={sps} {last_return=:.1f}")
+        # a checkpoint every --checkpoint-every iterations and after the last; one, and the exit, after a stop signal
+        if stop or iteration == args.num_iterations or args.checkpoint_every and iteration % args.checkpoint_every == 0:
+            save(f"{run_dir}/checkpoint.pt", agent, args, optimizer, iteration)
+        if stop:
+            say(f"stopped by signal {stop[0]} after iteration {iteration}; continue with --resume {run_dir}")
+            sys.exit(128 + stop[0])
 
-            # one host transfer for all of this iteration's statistics
-            stats = {
-                "losses/value_loss": v_loss.detach(),
-                "losses/policy_loss": pg_loss.detach(),
-                "losses/entropy": entropy_loss.detach(),
-                "losses/old_approx_kl": old_approx_kl,
-                "losses/approx_kl": approx_kl,
-                "losses/clipfrac": torch.stack(clipfracs).mean(),
-                "losses/explained_variance": explained_variance(b_values, b_returns, b_valid),
-                "p3o/beta_mean": betas.mean(),
-                "p3o/beta_std": betas.std(),
-                "p3o/state_importance_mean": state_importances.mean(),
-            }
-            for tag, x in zip(stats, torch.stack(list(stats.values())).tolist(), strict=True):
-                writer.add_scalar(tag, x, global_step)
-            sps = int((global_step - start_global_step) / (time.time() - start_time))
-            writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
-            writer.add_scalar("charts/SPS", sps, global_step)
-            writer.add_scalar("charts/rollout_time", rollout_end - iteration_start, global_step)  # seconds (sps.py)
-            writer.add_scalar("charts/update_time", update_end - rollout_end, global_step)
-            writer.add_histogram("p3o/beta", betas, global_step)
-            writer.flush()
-            print(
-                f"iteration {iteration}/{args.num_iterations} {global_step=} SPS={sps} {last_return=:.1f}", flush=True
-            )
-            checkpoint_or_stop(stop_signal, iteration, run_dir, agent, optimizer, args)
-
-        finish(args, run_dir, agent, optimizer, writer, stop_signal, device, device_name)
+    # the model file (evaluate.py plays it, or the checkpoint), then the checkpoint marked finished
+    if args.save_model:
+        save(f"{run_dir}/{args.exp_name}.cleanrl_model", agent, args)
+    save(f"{run_dir}/checkpoint.pt", agent, args, optimizer, args.num_iterations, finished=True)
 
 
-# Run management: bad input, checkpoints and resume, evaluation, the allocator.
-
-
-def check_args(args: Args) -> None:
-    """Refuse bad input before any environment starts: one sentence, exit status 1."""
-    a, flag = vars(args), {name: "--" + name.replace("_", "-") for name in vars(args)}
-    bad = [
-        f"{flag[n]} must be a finite number, got {v}."
-        for n, v in a.items()
-        if isinstance(v, float) and not math.isfinite(v)
-    ]
-    # zero or a negative clip coefficient, value coefficient or gradient norm leaves nothing to learn
-    positive = ("total_timesteps", "num_envs", "num_steps", "num_minibatches", "update_epochs", "learning_rate")
-    positive += ("clip_coef", "vf_coef", "max_grad_norm")
-    bad += [f"{flag[n]} must be positive, got {a[n]}." for n in positive if not a[n] > 0]
-    bad += [f"{flag[n]} must lie in [0, 1], got {a[n]}." for n in ("gamma", "gae_lambda") if not 0 <= a[n] <= 1]
-    not_negative = ("checkpoint_every", "eval_episodes", "ent_coef")
-    bad += [f"{flag[n]} must be 0 or more, got {a[n]}." for n in not_negative if not a[n] >= 0]
-    if args.target_kl is not None and not args.target_kl > 0:
-        bad.append(f"--target-kl must be positive, got {args.target_kl}.")
-    bad += [f"--ewma-alpha must lie in (0, 1], got {args.ewma_alpha}."] if not 0 < args.ewma_alpha <= 1 else []
-    for n in ("exp_name", "run_name"):
-        parts = [] if a[n] is None else a[n].split("/")
-        if parts and (
-            any(p in ("", ".", "..") for p in parts)
-            or "\\" in a[n]
-            or "\0" in a[n]
-            or (n == "exp_name" and len(parts) > 1)
-        ):
-            bad.append(f"{flag[n]} {a[n]!r} must be a plain relative name, so that the run stays under runs/.")
-    # the model file is written after training: a name the file system cannot take must fail before it
-    if args.exp_name and len(f"{args.exp_name}.cleanrl_model.tmp".encode()) > 255:
-        bad.append(f"--exp-name is {len(args.exp_name.encode())} bytes long, too long for the model file's name.")
-    if args.auto_resume and not args.run_name:
-        bad.append("--auto-resume needs --run-name, the run folder it continues.")
-    if args.capture_video and not args.eval_episodes:
-        bad.append("--capture-video records the evaluation games, but --eval-episodes is 0.")
-    # a leftover ./wandb/ folder of an offline run is found as an empty namespace package (no origin), not wandb
-    if args.track and getattr(importlib.util.find_spec("wandb"), "origin", None) is None:
-        bad.append("--track needs wandb: run with `uv run --extra wandb ...` (or `pip install wandb`).")
-    batch = args.num_envs * args.num_steps
-    if not bad and batch % args.num_minibatches:
-        bad.append(
-            f"the batch (--num-envs * --num-steps = {batch}) does not divide into {args.num_minibatches} minibatches."
-        )
-    memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    if not bad and batch * 4 * 84 * 84 > memory:  # the rollout's uint8 frames, its largest buffer
-        bad.append(
-            f"the rollout's frames (--num-envs * --num-steps = {batch} x 4 x 84 x 84 bytes, {batch * 28224 / 2**30:.1f}"
-            f" GiB) would not fit this machine's {memory / 2**30:.1f} GiB of memory."
-        )
-    if not bad and args.total_timesteps < batch:
-        bad.append(f"--total-timesteps {args.total_timesteps} is less than one batch ({batch}): no update would run.")
-    if not bad:
-        # envpool takes seeds below 2^31 (numpy none below 0); the run derives seed + i for env i of a rollout
-        # resumed at any iteration, and seed + 1,000,000 + i for evaluation game i
-        derived = max((args.total_timesteps // batch + 1) * args.num_envs, 1_000_000 + args.eval_episodes) - 1
-        if derived > 2**31 - 1:
-            bad.append(
-                f"the run would derive seeds up to --seed + {derived} (evaluation games and iterations x envs),"
-                " past envpool's 2^31 - 1: fewer --eval-episodes or --total-timesteps."
-            )
-        elif not 0 <= args.seed <= 2**31 - 1 - derived:
-            bad.append(
-                f"--seed must lie in [0, {2**31 - 1 - derived}] (envpool seeds stay below 2^31, and this run"
-                f" derives seeds up to --seed + {derived}), got {args.seed}."
-            )
-    atari = [i for i in envpool.list_all_envs() if envpool.registration.registry.specs[i][0] == "envpool.atari"]
-    if args.env_id not in atari:
-        known = args.env_id in envpool.list_all_envs()
-        close = [] if known else difflib.get_close_matches(args.env_id, atari, n=3, cutoff=0.5)
-        what = "an envpool environment but not an Atari game" if known else "not an envpool environment"
-        hint = f"Did you mean {', '.join(close)}?" if close else "Atari ids look like Breakout-v5."
-        bad.append(f"--env-id {args.env_id} is {what}. {hint}")
-    if bad:
-        sys.exit(f"error: {bad[0]}")
-
+# Run management: bad input, the run folder, checkpoints and resume, signals.
 
 FORMAT = "atari-envpool/2"  # checkpoints and saved models: the agent, its arguments and more
-# flags that may change when a run is resumed (they keep the run's values unless given again); the other
-# arguments are the experiment's, from its checkpoint
-RUN_FLAGS = {"cuda", "save_model", "checkpoint_every", "resume", "auto_resume", "eval_episodes", "eval_greedy"}
-RUN_FLAGS |= {"capture_video", "track", "wandb_project_name", "wandb_entity"}
-INIT = [f.name for f in fields(Args) if f.init]  # the arguments; the others are computed from them
+INIT = [f.name for f in fields(Args) if f.init]  # the arguments; a resume may change the run flags, not the others
+RUN_FLAGS = set(INIT[INIT.index("cuda") : INIT.index("env_id")])
+POSITIVE = ["total_timesteps", "num_envs", "num_steps", "num_minibatches", "update_epochs", "learning_rate"]
+RULES = [  # flags, the test each value must pass, what it must be (no clipping, value weight or gradient norm learns)
+    (INIT, lambda v: not isinstance(v, float) or abs(v) < float("inf"), "be a finite number"),
+    (POSITIVE + ["clip_coef", "vf_coef", "max_grad_norm", "target_kl"], lambda v: v is None or v > 0, "be positive"),
+    (["gamma", "gae_lambda"], lambda v: 0 <= v <= 1, "lie in [0, 1]"),
+    (["ewma_alpha"], lambda v: 0 < v <= 1, "lie in (0, 1]"),
+    (["checkpoint_every", "ent_coef"], lambda v: v >= 0, "be 0 or more"),
+]
 
 
-def save(path: str, agent: Agent, args: Args, **extra) -> None:
-    """The agent, its arguments and `extra`, written atomically (a temporary file, then a rename): a failed write
-    (a full disk) stops the run with a sentence and leaves the previous file as it was."""
-    state = {
-        "format": FORMAT,
-        "algorithm": ALGORITHM,
-        "ablation": ABLATION,
-        "args": vars(args),
-        "model_state_dict": agent.state_dict(),
-    }
-    try:
-        torch.save(state | extra, f"{path}.tmp")
-        os.replace(f"{path}.tmp", path)
-    except (OSError, RuntimeError) as e:
-        if os.path.exists(f"{path}.tmp"):
-            os.remove(f"{path}.tmp")
-        why = e.strerror if isinstance(e, OSError) and e.strerror else str(e).strip().splitlines()[0]
-        free = shutil.disk_usage(os.path.dirname(os.path.abspath(path))).free  # torch's own errors rarely say
-        before = "is as it was before" if os.path.exists(path) else "was not written"
-        sys.exit(
-            f"error: writing {path} failed ({why}; {free / 2**20:.0f} MB free there), so it {before}; make room"
-            f" and continue with --resume {os.path.dirname(path)}."
-        )
+def problems(a: Args):  # each rule the arguments break, in order: a rule may assume that the ones before it hold
+    for names, test, what in RULES:
+        yield from (f"--{n.replace('_', '-')} must {what}, got {v}." for n in names if not test(v := getattr(a, n)))
+    for n, name in (("exp", a.exp_name), ("run", a.run_name)):
+        parts = [] if name is None else name.split("/")
+        if any(p in ("", ".", "..") or "\\" in p or "\0" in p for p in parts) or n == "exp" and len(parts) > 1:
+            yield f"--{n}-name {name!r} must be a plain relative name, so that the run stays under runs/."
+    if len(f"{a.exp_name}.cleanrl_model.tmp".encode()) > 255:  # the model file is written after training
+        yield f"--exp-name is {len(a.exp_name.encode())} bytes long, too long for the model file's name."
+    if a.auto_resume and not a.run_name:
+        yield "--auto-resume needs --run-name, the run folder it continues."
+    # a leftover ./wandb/ folder of an offline run is found as an empty namespace package (no origin), not wandb
+    if a.track and getattr(importlib.util.find_spec("wandb"), "origin", None) is None:
+        yield "--track needs wandb: run with `uv run --extra wandb ...` (or `pip install wandb`)."
+    batch, memory = a.num_envs * a.num_steps, os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    if batch % a.num_minibatches:
+        yield f"the batch (--num-envs * --num-steps = {batch}) does not divide into {a.num_minibatches} minibatches."
+    if batch * 4 * 84 * 84 > memory:  # the rollout's uint8 frames, its largest buffer
+        yield f"the rollout's frames (--num-envs * --num-steps = {batch} x 4 x 84 x 84 bytes) won't fit in memory."
+    if a.total_timesteps < batch:
+        yield f"--total-timesteps {a.total_timesteps} is less than one batch ({batch}): no update would run."
+    highest = 2**31 - (a.total_timesteps // batch + 1) * a.num_envs  # a resume at iteration i seeds seed + i * N + j
+    if not 0 <= a.seed <= highest:
+        yield f"--seed must lie in [0, {highest}] (the run's envpool seeds must stay below 2^31), got {a.seed}."
+    atari = [i for i, spec in envpool.registration.registry.specs.items() if spec[0] == "envpool.atari"]
+    if a.env_id not in atari:
+        close = difflib.get_close_matches(a.env_id, atari, n=3, cutoff=0.7) or ["an id like Breakout-v5"]
+        yield f"--env-id {a.env_id} is not an envpool Atari game; did you mean {', '.join(close)}?"
 
 
-def save_checkpoint(path, agent, optimizer, args, iteration, finished=False) -> None:
-    progress = dict(iteration=iteration, global_step=iteration * args.batch_size, finished=finished)
-    save(path, agent, args, optimizer_state_dict=optimizer.state_dict(), **progress)
-
-
-@contextlib.contextmanager
-def open_run(args: Args, cli: list[str] | None = None):
-    """The run folder, held by this process alone until the `with` ends, as (args, run_dir, checkpoint): a resume's
-    checkpoint and arguments (read_checkpoint), or a new run's clean folder and no checkpoint."""
-    keep_freed_memory()
-    args = replace(args)  # made again: a value set after Args(...) is checked and the sizes computed from it
-    resume = f"runs/{args.run_name}" if resuming(args) and args.resume is None else args.resume
-    path = None
-    if resume is None:
-        run_dir = f"runs/{args.run_name or f'{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}'}"
-    else:
-        path = os.path.join(resume, "checkpoint.pt") if os.path.isdir(resume) else resume
-        if not os.path.isfile(path):
-            sys.exit(f"error: --resume {path}: there is no checkpoint there.")
-        run_dir = os.path.dirname(path)
-    with hold(run_dir):
-        if path is None:
-            start_clean(run_dir)
-            yield args, run_dir, None
-        else:
-            args, checkpoint = read_checkpoint(path, resume, args, cli)
-            yield args, run_dir, checkpoint
-
-
-def resuming(args: Args) -> bool:
-    """Whether this call continues a run: --resume, or --auto-resume of a run folder that holds a checkpoint."""
-    auto = args.auto_resume and args.run_name and os.path.exists(f"runs/{args.run_name}/checkpoint.pt")
-    return args.resume is not None or bool(auto)
-
-
-def start_clean(run_dir: str) -> None:
-    """A new run's folder: never another run's, and without what a start killed before its first checkpoint
-    left there (its points would be logged again)."""
-    if os.path.exists(f"{run_dir}/checkpoint.pt"):
-        sys.exit(f"error: {run_dir} already holds a run; continue it with --resume {run_dir}.")
-    if os.path.exists(f"{run_dir}/eval.json"):
-        sys.exit(f"error: {run_dir} holds an evaluation but no checkpoint; give this run another --run-name.")
-    stale = glob.glob(f"{run_dir}/events.out.tfevents.*") + glob.glob(f"{run_dir}/checkpoint.pt.tmp")
-    if finished_logs([path for path in stale if ".tfevents." in path]):  # never delete what a finished run wrote
-        sys.exit(
-            f"error: {run_dir} holds the logs of a finished run but no checkpoint; give this run another --run-name."
-        )
-    for path in stale:
-        os.remove(path)
-    if stale:
-        print(
-            f"{run_dir} held no checkpoint: removed what an earlier start left ({len(stale)} file(s)); starting afresh"
-        )
-
-
-def finished_logs(paths: list[str]) -> bool:
-    """Whether event files hold a finished run (its checkpoint deleted): an evaluation, or the last iteration
-    by the sizes it logged with its hyperparameters. A start killed before its first checkpoint has neither."""
-    from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
-
-    sizes, steps = {}, set()
-    for path in paths:
-        try:
-            for event in EventFileLoader(path).Load():
-                for value in event.summary.value:
-                    if value.tag.startswith("eval/"):
-                        return True
-                    if value.tag == "hyperparameters/text_summary":
-                        rows = value.tensor.string_val[0].decode().splitlines()
-                        sizes |= dict(row.strip("|").split("|", 1) for row in rows if row.count("|") == 3)
-                    elif value.tag == "charts/SPS":
-                        steps.add(event.step)
-        except Exception:  # a file cut short: what it held up to there counts
-            continue
-    try:
-        return int(sizes["num_iterations"]) * int(sizes["batch_size"]) in steps
-    except (KeyError, ValueError):
-        return False
-
-
-def read_checkpoint(path: str, resume: str, args: Args, cli: list[str] | None) -> tuple[Args, dict]:
-    """A resume's checkpoint and arguments: the experiment's from the checkpoint, refusing one given here that
-    contradicts them; the run flags keep the run's values unless given again."""
-    try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:
-        sys.exit(f"error: --resume {path} is not a readable checkpoint; it may be truncated or corrupt ({e!r:.150}).")
-    if not isinstance(checkpoint, dict) or checkpoint.get("format") != FORMAT or "iteration" not in checkpoint:
-        sys.exit(f"error: --resume {path} is not a checkpoint written by these scripts.")
-    if checkpoint["algorithm"] != ALGORITHM:
-        algo = checkpoint["algorithm"]
-        sys.exit(f"error: --resume {path} is a {algo} checkpoint; resume it with {algo}_atari_envpool.py.")
-    if checkpoint.get("ablation") != ABLATION:  # a run of benchmark/p3o_ablation.py and plain P3O's do not mix
-        made = (
-            f"benchmark/p3o_ablation.py {checkpoint['ablation']}"
-            if checkpoint.get("ablation")
-            else "p3o_atari_envpool.py"
-        )
-        sys.exit(f"error: --resume {path} is a run of {made}; resume it with that script.")
-    # the command line again, over the checkpoint's arguments (what it leaves out keeps them); in-process, every
-    # value of `args` is given. resume=path: the saved arguments alone are not checked (the merged ones are, below)
-    saved = {k: v for k, v in checkpoint["args"].items() if k in INIT}
-    if cli is not None:
-        import tyro
-
-        parsed = tyro.cli(Args, args=cli, default=Args(**saved | {"resume": path}))
-    given = {name: getattr(parsed if cli is not None else args, name) for name in INIT}
-    experiment = [name for name in INIT if name not in RUN_FLAGS and name in saved]
-    differ = [name for name in experiment if given[name] != saved[name]]
-    if differ:
-        was = ", ".join(f"--{n.replace('_', '-')} {saved[n]!r} (now {given[n]!r})" for n in differ)
-        sys.exit(f"error: --resume {path} was started with {was}; resume it with the same arguments.")
-    args = Args(**given | {"resume": resume, "auto_resume": args.auto_resume})
-    check_args(args)  # the run flags it keeps together with those given now
-    return args, checkpoint
-
-
-@contextlib.contextmanager
-def hold(run_dir: str):
-    """Make the run folder and lock it for this process until the `with` ends (an OS lock, released however the
-    process ends, so a killed run never blocks its own resume); a second process given the same folder is refused."""
+def open_run(run: contextlib.ExitStack, args: Args, cli: list[str] | None):
+    """(args, run_dir, checkpoint, stop) until `run` closes: the folder under an OS lock (gone however a process ends),
+    a resume's checkpoint and arguments (the command line parsed again over them), and the stop signals received."""
+    with contextlib.suppress(OSError):  # glibc keeps freed blocks under 64 MB for the next CPU minibatch instead of
+        ctypes.CDLL("libc.so.6").mallopt(-3, 64 << 20)  # unmapping them: 1.17x faster training (benchmark/README.md)
+        ctypes.CDLL("libc.so.6").mallopt(-1, 2**31 - 1)  # and never shrinks the heap after a free
+    auto = args.auto_resume and os.path.isfile(f"runs/{args.run_name}/checkpoint.pt")
+    how, resume = ("--resume", args.resume) if args.resume else ("--auto-resume", auto and f"runs/{args.run_name}")
+    args = replace(args)  # made again: a value set after Args(...) is checked, and the sizes computed from it
+    path = resume and (os.path.join(resume, "checkpoint.pt") if os.path.isdir(resume) else resume)
+    if path and not os.path.isfile(path):
+        sys.exit(f"error: {how} {path}: there is no checkpoint there.")
+    name = args.run_name or f"{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}"
+    run_dir = os.path.dirname(path) if path else f"runs/{name}"
     try:
         os.makedirs(run_dir, exist_ok=True)
-        lock = open(os.path.join(run_dir, ".lock"), "a+")
+        lock = run.enter_context(open(f"{run_dir}/.lock", "a+"))
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        why = "one run folder takes one process (wait, or choose another --run-name)"
+        sys.exit(f"error: {run_dir} is in use by {open(lock.name).read()}; {why}.")
     except OSError as e:
         sys.exit(f"error: cannot create the run folder {run_dir} ({e.strerror}).")
-    with lock:
-        try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            lock.seek(0)
-            holder = lock.read().strip() or "another process"
-            sys.exit(
-                f"error: {run_dir} is in use by {holder}; one run folder takes one process (wait, or choose"
-                " another --run-name)."
-            )
-        lock.seek(0)
-        lock.truncate()
-        lock.write(f"process {os.getpid()} on {socket.gethostname()}")
-        lock.flush()
-        yield
+    lock.truncate(0)
+    print(f"process {os.getpid()} on {os.uname().nodename}", file=lock, end="", flush=True)
+    stop = []
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        run.callback(signal.signal, sig, signal.signal(sig, lambda signum, frame: stop.append(signum)))
+    if not path:
+        if "checkpoint.pt" in os.listdir(run_dir) or any(f.startswith("events.out") for f in os.listdir(run_dir)):
+            sys.exit(f"error: {run_dir} holds a run already; continue it with --resume, or use another --run-name.")
+        return args, run_dir, None, stop
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+        if checkpoint.get("format") != FORMAT or "iteration" not in checkpoint:
+            raise ValueError("written by these scripts, but not as a checkpoint")
+    except Exception:  # unreadable, or not a checkpoint of these scripts
+        sys.exit(f"error: {how} {path} is not a checkpoint these scripts can read (damaged, or another kind of file).")
+    if checkpoint["algorithm"] != ALGORITHM:
+        sys.exit(f"error: {how} {path} is a {checkpoint['algorithm']} run's checkpoint; resume it with its own script.")
+    saved = {k: v for k, v in checkpoint["args"].items() if k in INIT}
+    if cli is not None:
+        args = tyro.cli(Args, args=cli, default=Args(**saved | {"resume": path}))
+    given = {name: getattr(args, name) for name in INIT}
+    differ = [name for name in INIT if name not in RUN_FLAGS and name in saved and given[name] != saved[name]]
+    if differ:
+        was = ", ".join(f"--{n.replace('_', '-')} {saved[n]!r} (now {given[n]!r})" for n in differ)
+        sys.exit(f"error: {how} {path} was started with {was}; resume it with the same arguments.")
+    return Args(**given | {"resume": None}), run_dir, checkpoint, stop  # checked, with the run flags given now
 
 
-def say_device(device: torch.device, cuda: bool) -> str:
-    """Print the device the run trains on, warning when --cuda is on but torch finds no GPU; returns its name."""
+def save(path: str, agent: Agent, args: Args, optimizer=None, iteration=0, finished=False) -> None:
+    """The agent and its arguments; with the optimizer, a checkpoint (progress, and the random state evaluate.py plays
+    the run's own games with). Written whole or not at all: a failed write leaves the old file as it was, and stops."""
+    state = dict(format=FORMAT, algorithm=ALGORITHM, args=vars(args), model_state_dict=agent.state_dict())
+    state |= dict(env_id=args.env_id, num_actions=agent.actor.out_features)
+    if optimizer:
+        state |= dict(optimizer_state_dict=optimizer.state_dict(), rng_state=torch.get_rng_state())
+        state |= dict(iteration=iteration, global_step=iteration * args.batch_size, finished=finished)
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
+    try:
+        with open(f"{path}.tmp", "wb") as f:
+            f.write(buffer.getbuffer())
+        os.replace(f"{path}.tmp", path)
+    except OSError as e:
+        with contextlib.suppress(OSError):
+            os.remove(f"{path}.tmp")
+        then = f"continue with --resume {os.path.dirname(path)}" if iteration or not optimizer else "run it again"
+        sys.exit(f"error: writing {path} failed ({e.strerror or e}), so it is as it was; make room and {then}.")
+
+
+def say(text: str) -> None:
+    """print that outlives its reader (`| tee` ended by Ctrl-C): the rest goes to /dev/null, the run on."""
+    try:
+        print(text, flush=True)
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
+def say_device(device: torch.device, cuda: bool) -> str:  # and a warning when --cuda finds no GPU
     name = f"cuda ({torch.cuda.get_device_name(device)})" if device.type == "cuda" else "cpu"
     if cuda and device.type == "cpu":
         build = f"built for CUDA {torch.version.cuda}" if torch.version.cuda else "a CPU-only build"
-        print(
-            f"warning: --cuda is on but torch {torch.__version__} ({build}) finds no usable GPU, so this run trains on"
-            " the CPU (README.md, 'GPU and driver'; --no-cuda silences this).",
-            file=sys.stderr,
-        )
-    print(f"device: {name}", flush=True)
+        warn = f"warning: --cuda is on but torch {torch.__version__} ({build}) finds no usable GPU, so this run trains"
+        print(f"{warn} on the CPU (README.md, 'GPU and driver'; --no-cuda silences this).", file=sys.stderr)
+    say(f"device: {name}")
     return name
 
 
-def open_writer(args: Args, run_dir: str, checkpoint: dict | None, device_name: str):
-    """CleanRL's TensorBoard writer (and W&B with --track). A new run logs its hyperparameters; a resume purges
-    the points the killed run logged after its checkpoint, so none is duplicated."""
+def open_writer(args: Args, run_dir: str, checkpoint: dict | None, device_name: str, agent, optimizer):
+    """CleanRL's writer (W&B with --track), after a new run's first checkpoint: a run with events has a checkpoint."""
     from torch.utils.tensorboard import SummaryWriter
 
-    if args.track:  # W&B mirrors the TensorBoard events; started before the writer, which it patches
-        start_wandb(args, run_dir, resuming=checkpoint is not None)
-    purge_step = checkpoint["iteration"] * args.batch_size + 1 if checkpoint else None
-    writer = SummaryWriter(run_dir, purge_step=purge_step)
-    if checkpoint is None:
+    if args.track:  # W&B mirrors the TensorBoard events: started before the writer, which it patches
+        wandb = importlib.import_module("wandb")  # one W&B run however often the run resumes: its id stays here
+        id_path = f"{run_dir}/wandb_id"
+        run_id = open(id_path).read() if checkpoint and os.path.exists(id_path) else os.urandom(16).hex()
+        open(id_path, "w").write(run_id)
+        config = dict(project=args.wandb_project_name, entity=args.wandb_entity, config=vars(args), id=run_id)
+        try:
+            wandb.init(**config, name=os.path.basename(run_dir), sync_tensorboard=True, save_code=True, resume="allow")
+        except Exception as e:  # most often no login: offline mode needs none
+            why = (str(e).strip().splitlines() or [type(e).__name__])[0]
+            sys.exit(f"error: W&B did not start ({why}); log in with `wandb login`, or set WANDB_MODE=offline.")
+    if not checkpoint:
+        save(f"{run_dir}/checkpoint.pt", agent, args, optimizer, iteration=0)
+    # a resume purges the points the stopped run logged after its checkpoint (TensorBoard leaves out what follows)
+    writer = SummaryWriter(run_dir, purge_step=checkpoint["iteration"] * args.batch_size + 1 if checkpoint else None)
+    if not checkpoint:
         table = "\n".join([f"|{key}|{value}|" for key, value in (vars(args) | {"device": device_name}).items()])
         writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n{table}")
     return writer
 
 
-def start_wandb(args: Args, run_dir: str, resuming: bool):
-    """W&B as CleanRL starts it. The run id is kept in the run folder, so a resumed run continues its W&B run."""
-    import wandb
-
-    os.makedirs(run_dir, exist_ok=True)
-    id_path = os.path.join(run_dir, "wandb_id")
-    run_id = open(id_path).read() if resuming and os.path.exists(id_path) else uuid.uuid4().hex
-    with open(id_path, "w") as f:
-        f.write(run_id)
-    try:
-        wandb.init(
-            project=args.wandb_project_name,
-            entity=args.wandb_entity,
-            sync_tensorboard=True,
-            config=vars(args),
-            name=os.path.basename(run_dir),
-            save_code=True,
-            id=run_id,
-            resume="allow",
-        )
-    except Exception as e:  # most often no login: offline mode needs none
-        why = (str(e).strip().splitlines() or [type(e).__name__])[0]
-        sys.exit(
-            f"error: W&B did not start ({why}); log in with `wandb login`, or set WANDB_MODE=offline to log"
-            " locally and `wandb sync` later."
-        )
-    return wandb
-
-
-def catch_stop_signals() -> list[int]:
-    """SIGTERM (what Slurm sends before a preemption or the time limit) or SIGINT: noted in the list returned, so
-    that the run finishes its iteration, checkpoints and stops (checkpoint_or_stop)."""
-    stop_signal = []
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda signum, frame: stop_signal.append(signum))
-    return stop_signal
-
-
-def stop_if_not_finite(finite, agent, next_obs, iteration, run_dir) -> None:
-    """Stop before a checkpoint can take weights the agent cannot act with: a non-finite loss or gradient norm
-    (`finite`), or weights blown up but finite whose outputs on the next states are not."""
+def stop_if_not_finite(finite, agent, next_obs, iteration, run_dir) -> None:  # before a checkpoint takes such weights
     with torch.no_grad():
         hidden = agent.hidden(next_obs)
         finite &= torch.isfinite(agent.actor(hidden)).all() & torch.isfinite(agent.critic(hidden)).all()
     if not finite.item():
-        path = os.path.join(run_dir, "checkpoint.pt")
-        kept = f"{path} keeps the last weights it could act with" if os.path.exists(path) else "nothing was saved"
-        sys.exit(
-            f"error: the loss or the policy became non-finite (nan or inf) in iteration {iteration}, so the run"
-            f" stopped and {kept} (a lower --learning-rate or --max-grad-norm may help)."
-        )
-
-
-def checkpoint_or_stop(stop_signal, iteration, run_dir, agent, optimizer, args) -> None:
-    """The periodic checkpoint; after a stop signal, a checkpoint of this iteration and the exit."""
-    if stop_signal or (args.checkpoint_every and iteration % args.checkpoint_every == 0):
-        save_checkpoint(os.path.join(run_dir, "checkpoint.pt"), agent, optimizer, args, iteration)
-    if stop_signal:
-        print(f"stopped by signal {stop_signal[0]} after iteration {iteration}; continue with --resume {run_dir}")
-        sys.exit(128 + stop_signal[0])
-
-
-def finish(args, run_dir, agent, optimizer, writer, stop_signal, device, device_name) -> None:
-    """After the last iteration: a checkpoint, the evaluation (logged once, even when this stage is redone), the
-    model file, then the checkpoint marked finished. A failure or a signal here keeps the first checkpoint, from
-    which --resume redoes only this stage."""
-    checkpoint_path = os.path.join(run_dir, "checkpoint.pt")
-    save_checkpoint(checkpoint_path, agent, optimizer, args, args.num_iterations)
-    for sig in (signal.SIGTERM, signal.SIGINT):  # from here a signal stops the stage at once
-        signal.signal(sig, stop_final_stage)
-    try:
-        if stop_signal:  # it came after the last iteration's check
-            raise Stopped(stop_signal[0])
-        evaluated = os.path.exists(f"{run_dir}/eval.json")
-        if evaluated:
-            print(f"{run_dir}/eval.json: this run's evaluation was logged before; not played again")
-        if args.eval_episodes and not evaluated:
-            print(f"evaluating: {args.eval_episodes} full games", flush=True)
-            videos = f"{run_dir}/videos" if args.capture_video else None
-            seed = args.seed + 1_000_000
-            report = evaluate(agent, args.env_id, args.eval_episodes, seed, args.eval_greedy, device, videos)
-            global_step = args.num_iterations * args.batch_size
-            made = {"algorithm": ALGORITHM, "global_step": global_step, "device": device_name}
-            write_evaluation(report | made, run_dir, writer)
-            print(f"eval: {args.eval_episodes} games, return {report['mean']:.1f} ± {report['std_err']:.1f}")
-            if args.track and videos:
-                import wandb
-
-                wandb.log({f"videos/eval-game{i}": wandb.Video(path) for i, path in enumerate(report["videos"])})
-        if args.save_model:
-            model_path = f"{run_dir}/{args.exp_name}.cleanrl_model"
-            save(model_path, agent, args, env_id=args.env_id, num_actions=agent.actor.out_features)
-    except Stopped as stop:
-        print(f"stopped by signal {stop.signum} in the final stage; continue with --resume {run_dir}")
-        sys.exit(128 + stop.signum)
-    except Exception as e:  # after a whole training: one sentence, and the checkpoint to redo this stage from
-        sys.exit(
-            f"error: the evaluation or model saving after training failed ({type(e).__name__}: {e}); the trained"
-            f" agent is kept in {checkpoint_path}: run again with --resume {run_dir} to redo them."
-        )
-    save_checkpoint(checkpoint_path, agent, optimizer, args, args.num_iterations, finished=True)
-
-
-def evaluate(agent, env_id, episodes, seed, greedy, device, video_dir=None) -> dict:
-    """Play `episodes` full games (all lives), game i in its own environment seeded `seed + i`, with
-    actions sampled from the policy (or its most probable action when `greedy`); unclipped returns.
-    The mean's standard error uses the population standard deviation, as the thesis's table 5.1.
-    With `video_dir`, game i is also written to `video_dir/eval-game{i}.mp4`: the colour frame after each
-    of its agent steps, at 15 frames/s (the emulator's 60 Hz over envpool's frame skip of 4)."""
-    envs = make_env(env_id, episodes, seed, render_mode="rgb_array" if video_dir else None)
-    paths = [f"{video_dir}/eval-game{i}.mp4" for i in range(episodes)] if video_dir else []
-    if video_dir:
-        import imageio_ffmpeg  # only here: nothing else needs it (the GPU bundle carries it without its ffmpeg)
-
-        os.makedirs(video_dir, exist_ok=True)
-    writers = [imageio_ffmpeg.write_frames(path, (160, 210), fps=15, macro_block_size=1) for path in paths]
-    for writer in writers:
-        writer.send(None)  # start the encoder
-    obs_np, _ = envs.reset()
-    returns, lengths, playing = np.zeros(episodes), np.zeros(episodes, dtype=np.int64), np.ones(episodes, dtype=bool)
-    with torch.inference_mode():
-        while playing.any():
-            logits = agent.actor(agent.hidden(torch.as_tensor(obs_np, device=device)))
-            action = logits.argmax(-1) if greedy else Categorical(logits=logits, validate_args=False).sample()
-            obs_np, _, terminations, truncations, info = envs.step(action.cpu().numpy())
-            if writers:  # the colour frame of each game still playing
-                for game, frame in zip(np.flatnonzero(playing), envs.render(np.flatnonzero(playing)), strict=True):
-                    writers[game].send(np.ascontiguousarray(frame))
-            returns += info["reward"] * playing
-            lengths += playing
-            playing &= ~np.logical_or(info["terminated"].astype(bool), truncations)
-    envs.close()
-    for writer in writers:
-        writer.close()
-    games = {"seeds": [seed + i for i in range(episodes)], "returns": returns.tolist(), "lengths": lengths.tolist()}
-    summary = {"mean": float(returns.mean()), "std_err": float(returns.std() / np.sqrt(episodes))}
-    return {"env_id": env_id, "greedy": greedy} | games | summary | ({"videos": paths} if paths else {})
-
-
-def write_evaluation(report: dict, run_dir: str, writer) -> None:
-    """Each game's return under `eval/episodic_return` (step = game index), then `eval.json`, written whole (a
-    temporary file, renamed): it is the record that the evaluation was logged, which a redone last stage reads."""
-    for game, ret in enumerate(report["returns"]):
-        writer.add_scalar("eval/episodic_return", ret, game)
-    writer.flush()
-    path = os.path.join(run_dir, "eval.json")
-    with open(f"{path}.tmp", "w") as f:
-        json.dump(report, f, indent=2)
-    os.replace(f"{path}.tmp", path)
-
-
-class Stopped(BaseException):
-    """A signal in the final stage (not an Exception: the stage's error handling must not take it for a failure)."""
-
-    def __init__(self, signum: int):
-        super().__init__(signum)
-        self.signum = signum
-
-
-def stop_final_stage(signum, frame):
-    raise Stopped(signum)
-
-
-def keep_freed_memory() -> None:
-    """glibc keeps freed blocks under 64 MB for reuse instead of unmapping them and faulting them back in for
-    the next CPU minibatch: 1.17x faster CPU training, the same numbers and peak memory (benchmark/README.md).
-    `MALLOC_MMAP_THRESHOLD_` would do the same, but only when set before python starts."""
-    try:
-        libc = ctypes.CDLL("libc.so.6") if sys.platform.startswith("linux") else None
-    except OSError:  # not glibc (e.g. musl): keep its defaults
-        libc = None
-    if libc is not None:
-        libc.mallopt(-3, 64 << 20)  # M_MMAP_THRESHOLD: blocks under 64 MB come from the reusable heap
-        libc.mallopt(-1, 2**31 - 1)  # M_TRIM_THRESHOLD: do not shrink the heap after each free
+        why = f"the loss or the policy became non-finite (nan or inf) in iteration {iteration}, so the run stopped"
+        kept = f"{run_dir}/checkpoint.pt keeps the last weights it could act with"
+        sys.exit(f"error: {why} and {kept} (a lower --learning-rate or --max-grad-norm may help).")
 
 
 if __name__ == "__main__":
-    import tyro
-
     main(tyro.cli(Args), sys.argv[1:])

@@ -35,14 +35,16 @@ trap 'rm -rf "$work"' EXIT
 
 if [ "$REHEARSAL" = 1 ]; then
     device=cpu  # what the runs must say they trained on
-    run=(--num-envs 4 --num-steps 32 --num-minibatches 2 --update-epochs 1 --total-timesteps 384 --eval-episodes 1)
+    run=(--num-envs 4 --num-steps 32 --num-minibatches 2 --update-epochs 1 --total-timesteps 384)
+    games=1  # the evaluation's (benchmark/evaluate.py --run)
     sps=(--num-envs 4 --num-steps 32 --num-minibatches 2 --update-epochs 1 --iterations 2 --warmup 1)  # the runs' sizes
     limits=(120 300 300 120 60)  # environment, each run, sps.py, each read-back, the archive and the comparison
     budget=${BUDGET:-1500}
 else
     device="cuda ("
     # 15 iterations of 65,536 steps: about 110 s at the 8,600-9,400 steps/s a real P3O run logged there
-    run=(--total-timesteps 1000000 --eval-episodes 2)
+    run=(--total-timesteps 1000000)
+    games=2
     sps=(--thesis --iterations 3 --warmup 1)  # about 130 s: raw envpool, then each script started as a user does
     # measured: 10 s; about 130 s a run (start-up and evaluation included); about 130 s; 1 s; under 1 s
     limits=(60 170 160 15 10)
@@ -164,7 +166,8 @@ fi
 for algo in ppo p3o; do
     name="${ENV_ID}__${algo}_atari_envpool__1"  # as the scripts name a seed-1 run, so that results.py groups it
     step "run_$algo" "${limits[1]}" bash -c "cd '$work' && $PYTHON '$root/${algo}_atari_envpool.py' --env-id '$ENV_ID' \
-        ${run[*]} --seed 1 --run-name '$name' > '$work/$algo.log' 2>&1; rc=\$?; tail -n 3 '$work/$algo.log'; exit \$rc"
+        ${run[*]} --seed 1 --run-name '$name' > '$work/$algo.log' 2>&1 && $PYTHON '$root/benchmark/evaluate.py' \
+        --run 'runs/$name' --episodes $games >> '$work/$algo.log' 2>&1; rc=\$?; tail -n 3 '$work/$algo.log'; exit \$rc"
     cp "$work/$algo.log" "$work/runs/$name/train.log" 2> /dev/null
     step "read_back_$algo" "${limits[3]}" bash -c "read_back '$name' $algo"
 done

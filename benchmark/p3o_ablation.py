@@ -1,6 +1,6 @@
-r"""P3O with one of its pieces switched off or changed: the diagnostic runs behind "Does it learn?" in
-benchmark/README.md. Not a second P3O: p3o_atari_envpool.py's own `main`, with one of its module
-functions replaced before training starts. The first argument names the change; the rest are
+r"""P3O with one of its pieces switched off or changed: the diagnostic runs behind "Does it learn?" and "Which piece
+of P3O carries its lead" in benchmark/README.md. Not a second P3O: p3o_atari_envpool.py's own `main`, with one of its
+module functions replaced before training starts. The first argument names the change; the rest are
 p3o_atari_envpool.py's flags.
 
     uv run python benchmark/p3o_ablation.py gae --env-id Breakout-v5 --num-envs 8 --num-steps 128 \
@@ -11,8 +11,9 @@ Changes:
   value-beta-one  value loss with beta = 1 at every state (no 0.5 factor, as P3O); GBAE kept
   batch-minmax    beta normalised by the min and max over the whole [T+1, N] rollout, not per environment
 
-Runs are named `{env}__p3o_{change}__{seed}__{time}` (`--exp-name` is set), so `results.py` keeps them
-apart from P3O's. Their checkpoints record the change: only this script, with the same change, continues them.
+Runs are named `{env}__p3o_{change}__{seed}__{time}` (`--exp-name` is set), so that `results.py` keeps them apart from
+P3O's. Their checkpoints and models say `p3o-{change}` where P3O's say `p3o` (the script's ALGORITHM, set here): plain
+P3O does not continue an ablation's run, nor this tool plain P3O's; benchmark/evaluate.py plays them as P3O models.
 """
 
 import os
@@ -35,8 +36,8 @@ def batch_minmax_betas(si, alpha):
 
 
 def apply(change: str) -> None:
-    """Replace the P3O function that `change` names. Refuses, rather than silently training plain P3O, when
-    p3o_atari_envpool.main no longer calls a module function of that name."""
+    """Replace the P3O function that `change` names, and name the algorithm after the change. Refuses, rather than
+    silently training plain P3O, when p3o_atari_envpool.main no longer calls a module function of that name."""
     import torch
 
     name = {"gae": "gbae", "value-beta-one": "value_loss", "batch-minmax": "compute_betas"}[change]
@@ -50,11 +51,11 @@ def apply(change: str) -> None:
     def value_loss_with_beta_one(newvalue, values, returns, betas, *rest):
         return original(newvalue, values, returns, torch.ones_like(betas), *rest)
 
-    p3o.ABLATION = change  # written into the run's checkpoints: plain P3O refuses to continue the run, and back
     replacement = {"gae": gbae_with_beta_zero, "value-beta-one": value_loss_with_beta_one}.get(
         change, batch_minmax_betas
     )
     setattr(p3o, name, replacement)
+    p3o.ALGORITHM = f"p3o-{change}"  # written into the run's checkpoints, checked when one is resumed
 
 
 def main(argv: list[str]) -> None:

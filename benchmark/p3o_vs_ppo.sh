@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # The thesis's grid: 6 games x 10 seeds x {PPO, P3O}, 20M steps each (thesis section 5.1), locally or
 # as one Slurm job array. Runs go under runs/ in the current folder, as the training scripts' do.
-# Every run has a fixed name, runs/$GROUP/{env_id}__{exp_name}__{seed}, and is started with --auto-resume:
-# running the sweep again leaves out the runs whose checkpoint says they finished (nothing is started or
-# submitted for them) and continues unfinished ones from their checkpoints; a requeued Slurm task does the same.
+# Every run has a fixed name, runs/$GROUP/{env_id}__{exp_name}__{seed}, and is started with --auto-resume; once it
+# has trained, benchmark/evaluate.py --run plays its evaluation (EVAL_EPISODES games) into its folder. Running the
+# sweep again leaves out the runs whose checkpoint says they finished and whose eval.json is there (nothing is
+# started or submitted for them), continues unfinished ones from their checkpoints and evaluates trained ones that
+# lack their evaluation; a requeued Slurm task does the same.
 #
 #   bash benchmark/p3o_vs_ppo.sh                        # local: WORKERS runs at a time, a log per run
 #   SLURM=1 bash benchmark/p3o_vs_ppo.sh                # one sbatch --array job, one task per run
@@ -12,8 +14,10 @@
 # Knobs (environment variables):
 #   GAMES            envpool ids (default: the thesis's six games)
 #   SEEDS            seeds (default: 1 2 ... 10)
-#   ALGOS            which scripts: ppo, p3o or both (default: "ppo p3o")
+#   ALGOS            which scripts: ppo, p3o or both (default: "ppo p3o"), or a P3O ablation of
+#                    benchmark/p3o_ablation.py: p3o-gae, p3o-value-beta-one, p3o-batch-minmax (runs named p3o_gae, ...)
 #   TOTAL_TIMESTEPS  steps per run (default: 20000000)
+#   EVAL_EPISODES    games each run's evaluation plays after training (default: 10; 0: no evaluation)
 #   EXTRA_ARGS       more flags for both scripts, e.g. "--num-envs 64", split at spaces (no quotes); not the
 #                    flags the sweep sets per run (--env-id, --seed, --total-timesteps, --run-name, --exp-name,
 #                    --ewma-alpha, --resume, --auto-resume): they would make runs differ from their names
@@ -34,6 +38,7 @@ GAMES=${GAMES-"Breakout-v5 Freeway-v5 Seaquest-v5 Riverraid-v5 Qbert-v5 MsPacman
 SEEDS=${SEEDS-"1 2 3 4 5 6 7 8 9 10"}
 ALGOS=${ALGOS-"ppo p3o"}
 TOTAL_TIMESTEPS=${TOTAL_TIMESTEPS:-20000000}
+EVAL_EPISODES=${EVAL_EPISODES:-10}
 EXTRA_ARGS=${EXTRA_ARGS:-}
 WORKERS=${WORKERS:-1}
 GROUP=${GROUP:-p3o_vs_ppo}
@@ -58,6 +63,10 @@ knob_error() { echo "error: $1" >&2; exit 1; }
 [ -n "${GAMES// /}" ] || knob_error "GAMES is empty."
 [ -n "${SEEDS// /}" ] || knob_error "SEEDS is empty."
 [ -n "${ALGOS// /}" ] || knob_error "ALGOS is empty."
+# a seed is a number written one way (`seq -w`'s 01 would be a second run of seed 1, in a folder of its own)
+for seed in $SEEDS; do
+    [[ "$seed" =~ ^(0|[1-9][0-9]*)$ ]] || knob_error "SEEDS must be whole numbers without leading zeros, got '$seed'."
+done
 for knob in GAMES SEEDS ALGOS; do  # a repeated entry would start the same run twice
     repeated=$(tr -s ' ' '\n' <<<"${!knob}" | sed '/^$/d' | sort | uniq -d | head -n 1)
     [ -z "$repeated" ] || knob_error "$knob names '$repeated' twice."
@@ -75,36 +84,46 @@ case "$EXTRA_ARGS$GROUP" in
     *[\'\"\\]*) knob_error "EXTRA_ARGS and GROUP are split at spaces and cannot hold quotes or backslashes." ;;
 esac
 [[ "$GROUP" =~ ^[^[:space:]]+$ ]] || knob_error "GROUP must be one folder name without spaces, got '$GROUP'."
-for seed in $SEEDS; do [[ "$seed" =~ ^[0-9]+$ ]] || knob_error "SEEDS must be whole numbers, got '$seed'."; done
 [[ "$TOTAL_TIMESTEPS" =~ ^[1-9][0-9]*$ ]] || knob_error "TOTAL_TIMESTEPS must be a positive whole number, got '$TOTAL_TIMESTEPS'."
 [[ "$WORKERS" =~ ^[1-9][0-9]*$ ]] || knob_error "WORKERS must be a whole number of at least 1, got '$WORKERS'."
 [[ "$SIGNAL_SECONDS" =~ ^[0-9]+$ ]] || knob_error "SIGNAL_SECONDS must be a whole number, got '$SIGNAL_SECONDS'."
+[[ "$EVAL_EPISODES" =~ ^[0-9]+$ ]] || knob_error "EVAL_EPISODES must be a whole number, got '$EVAL_EPISODES'."
 for algo in $ALGOS; do
     case "$algo" in
-        ppo | p3o) ;;
-        *) knob_error "ALGOS must be ppo, p3o or both, got '$algo'." ;;
+        ppo | p3o | p3o-gae | p3o-value-beta-one | p3o-batch-minmax) ;;
+        *) knob_error "ALGOS must be ppo, p3o or P3O ablations (p3o-gae, p3o-value-beta-one, p3o-batch-minmax), got '$algo'." ;;
     esac
 done
 
 commands=()
 names=()
+evals=()
 for game in $GAMES; do
     for seed in $SEEDS; do
         for algo in $ALGOS; do
-            name="$GROUP/${game}__${algo}_atari_envpool__${seed}"
-            cmd="$PYTHON ${scripts}${algo}_atari_envpool.py --env-id $game --seed $seed --total-timesteps $TOTAL_TIMESTEPS"
-            if [ "$algo" = p3o ]; then cmd+=" --ewma-alpha $(alpha_for "$game")"; fi
+            case "$algo" in  # the script, and the exp name it logs (the run's name)
+                ppo | p3o) script="${scripts}${algo}_atari_envpool.py" exp="${algo}_atari_envpool" ;;
+                *) script="${scripts}benchmark/p3o_ablation.py ${algo#p3o-}" exp="p3o_${algo#p3o-}" exp=${exp//-/_} ;;
+            esac
+            name="$GROUP/${game}__${exp}__${seed}"
+            cmd="$PYTHON $script --env-id $game --seed $seed --total-timesteps $TOTAL_TIMESTEPS"
+            if [ "$algo" != ppo ]; then cmd+=" --ewma-alpha $(alpha_for "$game")"; fi
             cmd+=" --run-name $name --auto-resume"
             if [ -n "$EXTRA_ARGS" ]; then cmd+=" $EXTRA_ARGS"; fi
             commands+=("$cmd")
             names+=("$name")
+            if [ "$EVAL_EPISODES" -gt 0 ]; then
+                evals+=("$PYTHON ${scripts}benchmark/evaluate.py --run runs/$name --episodes $EVAL_EPISODES")
+            else
+                evals+=("")
+            fi
         done
     done
 done
 
 logs="runs/$GROUP/logs"
 
-# every command's arguments, checked by the training script's own parser and check_args (games, seed ranges,
+# every command's arguments, checked by the training script's own parser and checks (games, seed ranges,
 # EXTRA_ARGS, run names), so that a bad grid stops here instead of in its first run; EXTRA_ARGS may not change
 # what names a run (its game, seed, steps, folder, alpha); and a run already in runs/$GROUP must have been made
 # with the same experiment arguments, or the sweep would skip or resume a different experiment
@@ -120,10 +139,12 @@ owner |= {"exp_name": "the run names", "ewma_alpha": "the thesis's alpha per gam
 owner |= {"auto_resume": "every run", "resume": "every run"}
 for command in sys.argv[3:]:
     words = shlex.split(command)
-    at = next(i for i, w in enumerate(words) if w.endswith("_atari_envpool.py"))
-    script = importlib.import_module(words[at].rsplit("/", 1)[-1][: -len(".py")])
+    at = next(i for i, w in enumerate(words) if w.endswith(("_atari_envpool.py", "p3o_ablation.py")))
+    ablation = words[at].endswith("p3o_ablation.py")  # then the change comes first, and the script is P3O's
+    script = importlib.import_module("p3o_atari_envpool" if ablation else words[at].rsplit("/", 1)[-1][:-3])
+    at += ablation
     base = words[at + 1 : len(words) - len(extra)]
-    # parsed as resumes, which Args leaves unchecked (check_args comes below, after the sweep's own knobs): the
+    # parsed as resumes, which Args leaves unchecked (the check comes below, after the sweep's own knobs): the
     # command without EXTRA_ARGS need not be a valid run by itself (a short TOTAL_TIMESTEPS is one once EXTRA_ARGS
     # shrinks the batch); a --resume in EXTRA_ARGS comes later and wins
     unchecked = ["--resume", "(unchecked)"]
@@ -137,8 +158,7 @@ for command in sys.argv[3:]:
         if name in given and given[name] != getattr(args, name):
             flag = "--" + name.replace("_", "-")
             sys.exit(f"error: EXTRA_ARGS sets {flag} ({getattr(args, name)}), which the sweep sets for {knob}.")
-    args.resume = None
-    script.check_args(args)
+    args = script.Args(**{n: getattr(args, n) for n in script.INIT} | {"resume": None})  # now checked, as a run's
     path = os.path.join("runs", args.run_name, "checkpoint.pt")
     if os.path.isfile(path):
         try:
@@ -153,26 +173,30 @@ for command in sys.argv[3:]:
             )
 PY
 
-# leave out finished runs (their checkpoint says so); one python call reads every checkpoint that exists
+# leave out finished runs (their checkpoint says so) that are evaluated (their eval.json is there, or EVAL_EPISODES
+# is 0); one python call reads every checkpoint that exists
 if [ -d "runs/$GROUP" ]; then
     # shellcheck disable=SC2086
-    finished=$($PYTHON - "${names[@]}" <<'PY'
+    finished=$($PYTHON - "$EVAL_EPISODES" "${names[@]}" <<'PY'
 import os, sys, torch
-for name in sys.argv[1:]:
+for name in sys.argv[2:]:
     path = os.path.join("runs", name, "checkpoint.pt")
+    evaluated = sys.argv[1] == "0" or os.path.isfile(os.path.join("runs", name, "eval.json"))
     try:
-        if os.path.isfile(path) and torch.load(path, map_location="cpu", weights_only=True, mmap=True)["finished"]:
+        if evaluated and torch.load(path, map_location="cpu", weights_only=True, mmap=True)["finished"]:
             print(name)
-    except Exception:  # unreadable: not known to be finished, so it runs (and the script says why it cannot)
+    except Exception:  # missing or unreadable: not known to be finished, so it runs (and the script says why not)
         pass
 PY
 )
     todo_commands=()
     todo_names=()
+    todo_evals=()
     for i in "${!names[@]}"; do
         if ! grep -qxF "${names[$i]}" <<<"$finished"; then
             todo_commands+=("${commands[$i]}")
             todo_names+=("${names[$i]}")
+            todo_evals+=("${evals[$i]}")
         fi
     done
     if [ "${#todo_names[@]}" -lt "${#names[@]}" ]; then
@@ -184,6 +208,7 @@ PY
     fi
     commands=("${todo_commands[@]}")
     names=("${todo_names[@]}")
+    evals=("${todo_evals[@]}")
 fi
 
 sbatch_script() {
@@ -200,20 +225,29 @@ cd "$PWD"
 commands=(
 $(printf '    %q\n' "${commands[@]}")
 )
+evals=(
+$(printf '    %q\n' "${evals[@]}")
+)
 echo "task \$SLURM_ARRAY_TASK_ID (restart \${SLURM_RESTART_COUNT:-0}) on \$(hostname): \${commands[\$SLURM_ARRAY_TASK_ID]}"
 # torch's threads: the task's CPUs, not the node's (tasks sharing a node would otherwise slow one another down)
 export OMP_NUM_THREADS=\${OMP_NUM_THREADS:-\${SLURM_CPUS_PER_TASK:-1}}
-# SIGTERM (preemption, or SIGNAL_SECONDS before the time limit) goes to the training script, which writes
-# a checkpoint and exits; the task then requeues itself and continues with --auto-resume.
-bash -c "exec \${commands[\$SLURM_ARRAY_TASK_ID]}" &
-child=\$!
+# SIGTERM (preemption, or SIGNAL_SECONDS before the time limit) goes to the training script, which writes a
+# checkpoint and exits (or to the evaluation, which writes nothing); the task then requeues itself and continues
+# with --auto-resume (or evaluates again).
+run() {
+    bash -c "exec \$1" &
+    child=\$!
+    wait \$child
+}
 trap 'kill -TERM \$child; wait \$child; scontrol requeue "\${SLURM_ARRAY_JOB_ID}_\${SLURM_ARRAY_TASK_ID}"; exit 0' TERM
-wait \$child
+run "\${commands[\$SLURM_ARRAY_TASK_ID]}" || exit
+if [ -n "\${evals[\$SLURM_ARRAY_TASK_ID]}" ]; then run "\${evals[\$SLURM_ARRAY_TASK_ID]}"; fi
 SBATCH
 }
 
 if [ "$DRY_RUN" = 1 ]; then
     printf '%s\n' "${commands[@]}"
+    [ "$EVAL_EPISODES" = 0 ] || echo "# then, for each run: $PYTHON ${scripts}benchmark/evaluate.py --run runs/RUN --episodes $EVAL_EPISODES"
     if [ "$SLURM" = 1 ]; then
         echo "# sbatch $SBATCH_ARGS runs/$GROUP/slurm/$GROUP.sbatch, with:"
         sbatch_script
@@ -240,7 +274,7 @@ fi
 failed=0
 for i in "${!commands[@]}"; do
     log="$logs/$(basename "${names[$i]}").log"
-    printf '%s\0%s\0' "${commands[$i]}" "$log"
-done | xargs -0 -n 2 -P "$WORKERS" bash -c 'echo "start: $0"; if $0 >> "$1" 2>&1; then echo "done:  $0"; else echo "FAILED (see $1): $0"; exit 1; fi' || failed=1
+    printf '%s\0%s\0%s\0' "${commands[$i]}" "$log" "${evals[$i]:-true}"
+done | xargs -0 -n 3 -P "$WORKERS" bash -c 'echo "start: $0"; if $0 >> "$1" 2>&1 && $2 >> "$1" 2>&1; then echo "done:  $0"; else echo "FAILED (see $1): $0"; exit 1; fi' || failed=1
 echo "logs in $logs/, runs in runs/$GROUP/"
 exit $failed

@@ -78,7 +78,7 @@ for config in $CONFIGS; do
     algos=${ALGOS_OF[$config]:-p3o}
     echo "== $config ($algos): ${FLAGS[$config]}"
     GAMES=Breakout-v5 SEEDS=$SEEDS ALGOS=$algos TOTAL_TIMESTEPS=$TOTAL_TIMESTEPS WORKERS=2 GROUP=regime/$config \
-        EXTRA_ARGS="${FLAGS[$config]} --eval-episodes 0" OMP_NUM_THREADS=1 bash "${base}benchmark/p3o_vs_ppo.sh"
+        EXTRA_ARGS="${FLAGS[$config]}" EVAL_EPISODES=0 OMP_NUM_THREADS=1 bash "${base}benchmark/p3o_vs_ppo.sh"
     for seed in $SEEDS; do
         for algo in $algos; do
             run=runs/regime/$config/Breakout-v5__${algo}_atari_envpool__$seed

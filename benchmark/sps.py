@@ -75,7 +75,7 @@ def _measure_script(name: str, settings: dict, warmup: int, iterations: int, cud
     batch = settings["num_envs"] * settings["num_steps"]
     cmd = [sys.executable, os.path.join(ROOT, SCRIPTS[name])]
     cmd += [f"--{key.replace('_', '-')}={value}" for key, value in settings.items()]
-    cmd += [f"--total-timesteps={batch * (warmup + iterations)}", "--seed=1", "--eval-episodes=0", "--run-name=sps"]
+    cmd += [f"--total-timesteps={batch * (warmup + iterations)}", "--seed=1", "--run-name=sps"]
     cmd += [] if cuda else ["--no-cuda"]
     started = time.time()
     with tempfile.TemporaryDirectory() as tmp:

@@ -2,6 +2,7 @@
 
 import glob
 import importlib
+import json
 import os
 import subprocess
 import sys
@@ -17,7 +18,7 @@ from helpers import ROOT, hyperparameters, scalars
 @pytest.fixture
 def ablation(monkeypatch):
     """The tool, with P3O's module functions restored after each test."""
-    for name in ("gbae", "value_loss", "compute_betas", "ABLATION"):
+    for name in ("gbae", "value_loss", "compute_betas", "ALGORITHM"):
         monkeypatch.setattr(p3o, name, getattr(p3o, name))
     from benchmark import p3o_ablation
 
@@ -81,7 +82,7 @@ def test_a_function_main_does_not_call_is_refused_loudly(ablation, monkeypatch):
 
 
 TINY = ["--env-id", "Breakout-v5", "--num-envs", "2", "--num-steps", "32", "--num-minibatches", "2"]
-TINY += ["--update-epochs", "1", "--total-timesteps", "128", "--eval-episodes", "0", "--seed", "5"]
+TINY += ["--update-epochs", "1", "--total-timesteps", "128", "--seed", "5"]
 
 
 def logged(run_dir):
@@ -110,14 +111,14 @@ def test_ablation_runs_are_named_apart_and_each_change_takes_effect(tmp_path):
         assert same_beta == (change != "batch-minmax"), change
         acted_on = {"gae": "losses/policy_loss", "value-beta-one": "losses/value_loss", "batch-minmax": "p3o/beta_std"}
         assert values[acted_on[change]][0] != plain[acted_on[change]][0], change
-        assert torch.load(os.path.join(run_dir, "checkpoint.pt"), weights_only=True)["ablation"] == change
+        assert torch.load(os.path.join(run_dir, "checkpoint.pt"), weights_only=True)["algorithm"] == f"p3o-{change}"
         # the checkpoint knows what made it: plain P3O does not continue an ablation's run, nor the other way round
         plain_script = os.path.join(ROOT, "p3o_atari_envpool.py")
         proc = subprocess.run([sys.executable, plain_script, "--resume", run_dir], capture_output=True, text=True)
         assert proc.returncode == 1
         assert proc.stderr == (
-            f"error: --resume {run_dir}/checkpoint.pt is a run of benchmark/p3o_ablation.py {change}; resume it with"
-            " that script.\n"
+            f"error: --resume {run_dir}/checkpoint.pt is a p3o-{change} run's checkpoint; resume it with its own"
+            " script.\n"
         )
         ablation_script = os.path.join(ROOT, "benchmark", "p3o_ablation.py")
         proc = subprocess.run(
@@ -125,6 +126,13 @@ def test_ablation_runs_are_named_apart_and_each_change_takes_effect(tmp_path):
         )
         assert proc.returncode == 1
         assert proc.stderr == (
-            f"error: --resume {plain_dir}/checkpoint.pt is a run of p3o_atari_envpool.py; resume it with that script.\n"
+            f"error: --resume {plain_dir}/checkpoint.pt is a p3o run's checkpoint; resume it with its own script.\n"
         )
-    assert torch.load(os.path.join(plain_dir, "checkpoint.pt"), weights_only=True)["ablation"] is None
+        # and evaluate.py plays it as the P3O model it is, naming the ablation
+        evaluate_script = os.path.join(ROOT, "benchmark", "evaluate.py")
+        proc = subprocess.run(
+            [sys.executable, evaluate_script, "--run", run_dir, "--episodes", "1"], capture_output=True, text=True
+        )
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        assert json.load(open(os.path.join(run_dir, "eval.json")))["algorithm"] == f"p3o-{change}"
+    assert torch.load(os.path.join(plain_dir, "checkpoint.pt"), weights_only=True)["algorithm"] == "p3o"

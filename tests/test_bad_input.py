@@ -10,13 +10,13 @@ import p3o_atari_envpool as p3o
 import ppo_atari_envpool as ppo
 from helpers import ROOT, assert_refusal
 
-SEED_MAX = 2**31 - 1 - 1_000_009
+SEED_MAX = 2**31 - (20_000_000 // 65536 + 1) * 256  # the defaults' run, resumed at its last iteration
 # each case: what the one-sentence refusal must name (the flag, the value, the fix), not its whole wording
 CASES = [
-    ({"env_id": "Breakout-v55"}, ["--env-id Breakout-v55", "not an envpool environment", "Breakout-v5,"]),
-    ({"env_id": "Brekout-v5"}, ["--env-id Brekout-v5", "not an envpool environment", "Breakout-v5"]),
-    ({"env_id": "NoSuchGame"}, ["--env-id NoSuchGame", "not an envpool environment", "Breakout-v5"]),
-    ({"env_id": "CartPole-v1"}, ["--env-id CartPole-v1", "not an Atari game", "Breakout-v5"]),
+    ({"env_id": "Breakout-v55"}, ["--env-id Breakout-v55", "not an envpool Atari game", "did you mean Breakout-v5?"]),
+    ({"env_id": "Brekout-v5"}, ["--env-id Brekout-v5", "not an envpool Atari game", "did you mean Breakout-v5"]),
+    ({"env_id": "NoSuchGame"}, ["--env-id NoSuchGame", "not an envpool Atari game", "Breakout-v5"]),
+    ({"env_id": "CartPole-v1"}, ["--env-id CartPole-v1", "not an envpool Atari game", "Breakout-v5"]),
     ({"num_envs": 4, "num_steps": 10, "num_minibatches": 3, "total_timesteps": 400}, ["40", "3 minibatches"]),
     ({"num_envs": 4, "num_steps": 32, "num_minibatches": 2, "total_timesteps": 100}, ["--total-timesteps 100", "128"]),
     ({"num_envs": 0}, ["--num-envs", "positive", "0"]),
@@ -38,14 +38,11 @@ CASES = [
     ({"gamma": 1.5}, ["--gamma", "[0, 1]", "1.5"]),
     ({"gae_lambda": -0.1}, ["--gae-lambda", "[0, 1]", "-0.1"]),
     ({"checkpoint_every": -1}, ["--checkpoint-every", "0 or more", "-1"]),
-    ({"eval_episodes": -2}, ["--eval-episodes", "0 or more", "-2"]),
     ({"auto_resume": True}, ["--auto-resume", "--run-name"]),
-    # the defaults derive seeds up to seed + 1,000,009 (the 10th evaluation game); envpool's end at 2^31 - 1
+    # a run resumed at iteration i seeds its envs seed + i * num_envs + j; envpool's seeds end at 2^31 - 1
     ({"seed": -1}, ["--seed", f"[0, {SEED_MAX}]", "got -1"]),
     ({"seed": 2**31 - 1}, ["--seed", f"[0, {SEED_MAX}]", "2147483647"]),
-    # trained the whole run, then crashed in the final evaluation (its last game's seed was past 2^31 - 1)
     ({"seed": SEED_MAX + 1}, ["--seed", f"[0, {SEED_MAX}]", f"got {SEED_MAX + 1}"]),
-    ({"seed": 10, "eval_episodes": 2**31}, ["2148483647", "2^31 - 1", "--eval-episodes", "--total-timesteps"]),
     ({"run_name": "../elsewhere"}, ["--run-name '../elsewhere'", "runs/"]),
     ({"run_name": "/tmp/elsewhere"}, ["--run-name '/tmp/elsewhere'", "runs/"]),
     ({"run_name": "group/../../elsewhere"}, ["--run-name 'group/../../elsewhere'", "runs/"]),

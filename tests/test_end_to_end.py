@@ -1,5 +1,5 @@
-"""Both scripts, for a few iterations on real envpool Atari games on the CPU, read back from
-their TensorBoard event files."""
+"""Both scripts, for a few iterations on real envpool Atari games on the CPU, each run then evaluated by
+benchmark/evaluate.py --run (as the sweep and the learning check do), read back from their event files."""
 
 import glob
 import json
@@ -43,7 +43,8 @@ P3O_TAGS = ["p3o/beta_mean", "p3o/beta_std", "p3o/state_importance_mean"]
 LOSS_TAGS = [t for t in COMMON_TAGS if t.startswith("losses/")] + ["charts/episodic_return"]
 
 
-def train(algo, env_id, workdir, *extra):
+def train(algo, env_id, workdir, *extra, evaluation=()):
+    """A run of TINY, then (with `evaluation`, evaluate.py's flags) its evaluation: (the runs' output, run folders)."""
     os.makedirs(workdir, exist_ok=True)
     proc = subprocess.run(
         [sys.executable, os.path.join(ROOT, f"{algo}_atari_envpool.py"), "--env-id", env_id, *TINY, *extra],
@@ -53,6 +54,13 @@ def train(algo, env_id, workdir, *extra):
         timeout=600,
     )
     run_dirs = glob.glob(os.path.join(workdir, "runs", f"{env_id}__{algo}_atari_envpool__3__*"))
+    if proc.returncode == 0 and evaluation:
+        played = evaluate_cli("--run", run_dirs[0], *evaluation, cwd=workdir)
+        proc.returncode, proc.stdout, proc.stderr = (
+            played.returncode,
+            proc.stdout + played.stdout,
+            proc.stderr + played.stderr,
+        )
     return proc, run_dirs
 
 
@@ -62,8 +70,9 @@ def runs(tmp_path_factory):
     for algo in SCRIPTS:
         for env_id in GAMES:
             workdir = tmp_path_factory.mktemp(f"{algo}-{env_id}")
-            extra = ["--save-model", "--eval-greedy"] if env_id == "Breakout-v5" else []
-            proc, run_dirs = train(algo, env_id, str(workdir), *extra)
+            extra = ["--save-model"] if env_id == "Breakout-v5" else []
+            evaluation = ["--greedy"] if env_id == "Breakout-v5" else ["--episodes", "10"]
+            proc, run_dirs = train(algo, env_id, str(workdir), *extra, evaluation=evaluation)
             out[algo, env_id] = proc, run_dirs
     return out
 
@@ -75,6 +84,7 @@ def test_run_exits_zero_and_logs_every_tag_with_finite_values(runs, algo, env_id
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert len(run_dirs) == 1
     lines = [line for line in proc.stdout.splitlines() if line.startswith("iteration ")]
+    assert "eval: 10 games, return " in proc.stdout
     assert len(lines) == ITERATIONS
     assert lines[-1].startswith(f"iteration {ITERATIONS}/{ITERATIONS} global_step={ITERATIONS * 512} SPS=")
     assert "last_return=" in lines[-1]
@@ -206,9 +216,39 @@ def test_evaluation_after_training_logs_each_game(runs, algo):
     np.testing.assert_allclose([v for _, v in logged], report["returns"])
 
 
+# The evaluation the training scripts played in-process until 2026-12 (commit 0dbe53f: p3o_atari_envpool.py and
+# ppo_atari_envpool.py with their default --eval-episodes 10), of the fixture's Qbert runs (TINY, seed 3, CPU): the
+# eval.json evaluate.py --run writes for the same run must be this, game for game, so that runs evaluated before and
+# after the evaluation moved to evaluate.py compare like for like.
+BEFORE = {
+    "ppo": (
+        [300.0, 75.0, 125.0, 125.0, 425.0, 100.0, 25.0, 625.0, 700.0, 550.0],
+        [380, 271, 306, 340, 306, 316, 285, 368, 436, 477],
+    ),
+    "p3o": (
+        [75.0, 75.0, 125.0, 125.0, 425.0, 100.0, 25.0, 725.0, 625.0, 550.0],
+        [266, 271, 306, 343, 306, 325, 285, 491, 411, 455],
+    ),
+}
+
+
+@pytest.mark.parametrize("algo", SCRIPTS)
+def test_a_runs_evaluation_is_the_one_the_training_script_played_before_it_moved(runs, algo):
+    proc, run_dirs = runs[algo, "Qbert-v5"]
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = json.load(open(os.path.join(run_dirs[0], "eval.json")))
+    returns, lengths = BEFORE[algo]
+    seeds = [1_000_003 + i for i in range(10)]
+    games = {"seeds": seeds, "returns": returns, "lengths": lengths}
+    summary = {"mean": float(np.mean(returns)), "std_err": float(np.std(returns) / np.sqrt(10))}
+    made = {"algorithm": algo, "global_step": 1536, "device": "cpu"}
+    assert report == {"env_id": "Qbert-v5", "greedy": False} | games | summary | made
+    assert list(report) == ["env_id", "greedy", "seeds", "returns", "lengths", "mean", "std_err"] + list(made)
+
+
 @pytest.mark.parametrize("algo", SCRIPTS)
 def test_greedy_evaluation_is_reproduced_by_the_evaluate_script(runs, algo):
-    # the training run evaluated its final agent greedily (--eval-greedy) on seeds 1,000,003 + i; the saved
+    # the run's evaluation played its final agent greedily (--greedy) on seeds 1,000,003 + i; the saved
     # model played again by benchmark/evaluate.py, greedily on the same seeds, must play the same games
     import json
 
@@ -224,7 +264,7 @@ def test_greedy_evaluation_is_reproduced_by_the_evaluate_script(runs, algo):
 
 def test_another_seed_gives_other_losses(runs, tmp_path):
     _, first_dirs = runs["p3o", "Breakout-v5"]
-    proc, other_dirs = train("p3o", "Breakout-v5", str(tmp_path), "--seed", "4", "--eval-episodes", "0")
+    proc, other_dirs = train("p3o", "Breakout-v5", str(tmp_path), "--seed", "4")
     assert proc.returncode == 0, proc.stderr[-3000:]
     (other,) = glob.glob(os.path.join(str(tmp_path), "runs", "Breakout-v5__p3o_atari_envpool__4__*"))
     first, second = scalars(first_dirs[0]), scalars(other)
@@ -304,7 +344,7 @@ def test_the_random_policy_samples_as_the_network_with_a_zeroed_policy_head():
     reports = []
     for policy in (agent, evaluate.UniformPolicy(6)):
         torch.manual_seed(3)
-        reports.append(module.evaluate(policy, "Qbert-v5", 3, 1_000_001, False, torch.device("cpu")))
+        reports.append(evaluate.play(policy, "Qbert-v5", 3, 1_000_001, False, torch.device("cpu")))
     assert reports[0] == reports[1]
     assert len(set(reports[0]["lengths"])) > 1  # the games differ, so the comparison can fail
 
@@ -313,7 +353,7 @@ def test_evaluate_script_random_baseline_and_refusals(runs, tmp_path):
     from benchmark import evaluate
 
     proc = evaluate_cli("--random", "--env-id", "Qbert-v5", "--episodes", "2", "--model-path", "x")
-    assert proc.returncode == 1 and "give either --model-path or --random" in proc.stderr
+    assert proc.returncode == 1 and "give one of --run, --model-path or --random" in proc.stderr
     assert "Traceback" not in proc.stderr
     report = evaluate.main(evaluate.Args(random=True, env_id="Qbert-v5", episodes=2))
     assert report["algorithm"] == "random" and len(report["returns"]) == 2
@@ -325,7 +365,7 @@ def test_evaluate_script_random_baseline_and_refusals(runs, tmp_path):
         ({"model_path": str(not_a_model)}, f"--model-path {not_a_model} is not a model file written by these scripts"),
         ({"model_path": str(tmp_path / "missing.pt")}, "no such file"),
         ({"random": True}, "--random needs --env-id"),
-        ({"random": True, "env_id": "CartPole-v1"}, "is an envpool environment but not an Atari game"),
+        ({"random": True, "env_id": "CartPole-v1"}, "--env-id CartPole-v1 is not an envpool Atari game"),
         ({"model_path": model, "env_id": "Qbert-v5"}, "has 4 actions (Breakout-v5) but Qbert-v5 has 6"),
         ({"model_path": model, "episodes": 0}, "--episodes must be positive"),
     ]:
@@ -367,10 +407,12 @@ def play_alone(module, agent, env_id, seed):
 def test_each_evaluation_game_replays_alone_on_the_seed_eval_json_lists(algo):
     # the seeds an evaluation reports are the games it played: each game, replayed in an environment of its
     # own seeded with its listed seed by the same greedy agent, gives the same return and length
+    from benchmark import evaluate
+
     module = SCRIPTS[algo]
     torch.manual_seed(0)
     agent = module.Agent(6)  # Qbert's 6 actions; an untrained agent loses its lives within a few hundred steps
-    report = module.evaluate(agent, "Qbert-v5", 4, 1_000_003, True, torch.device("cpu"))
+    report = evaluate.play(agent, "Qbert-v5", 4, 1_000_003, True, torch.device("cpu"))
     assert report["seeds"] == [1_000_003 + i for i in range(4)]
     for game, seed in enumerate(report["seeds"]):
         assert play_alone(module, agent, "Qbert-v5", seed) == (report["returns"][game], report["lengths"][game])
@@ -400,13 +442,52 @@ def test_evaluate_script_never_writes_into_a_run_and_is_not_counted_as_one(runs,
         "ppo_atari_envpool (evaluate.py)": 1,
     }
     # an evaluation that fails half-way leaves no folder behind
-    script = evaluate.load_script("ppo")
 
     def broken(*args, **kwargs):
         raise OSError("disk gone")
 
-    monkeypatch.setattr(script, "write_evaluation", broken)
+    monkeypatch.setattr(evaluate, "write_evaluation", broken)
     with pytest.raises(OSError):
         evaluate.main(evaluate.Args(model_path=model, episodes=1, run_dir=str(tmp_path / "half")))
     assert not (tmp_path / "half").exists()
     assert not [p for p in os.listdir(tmp_path) if not p.startswith(".") and p not in ("runs", "out")]
+
+
+def test_a_runs_evaluation_is_written_once_and_replays_game_for_game(runs, tmp_path):
+    """evaluate.py --run on a run already evaluated plays nothing and writes nothing; --replay plays its games again
+    and checks each against eval.json (and fails, naming the file, when one differs)."""
+    _, run_dirs = runs["ppo", "Qbert-v5"]
+    run_dir = tmp_path / "run"
+    shutil.copytree(run_dirs[0], run_dir)
+    files = {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file()}
+    again = evaluate_cli("--run", str(run_dir))
+    assert again.returncode == 0, again.stderr
+    assert "this run was evaluated before; not played again" in again.stdout and "game 0" not in again.stdout
+    replay = evaluate_cli("--run", str(run_dir), "--replay")
+    assert replay.returncode == 0, replay.stderr
+    assert f"replayed {run_dir}/eval.json: the same 10 games" in replay.stdout
+    assert {p.name: p.read_bytes() for p in run_dir.iterdir() if p.is_file()} == files
+    report = json.loads((run_dir / "eval.json").read_text())
+    report["returns"][3] += 25
+    (run_dir / "eval.json").write_text(json.dumps(report))
+    wrong = evaluate_cli("--run", str(run_dir), "--replay")
+    assert wrong.returncode == 1
+    assert wrong.stderr.splitlines()[-1].startswith(f"error: the replayed games differ from {run_dir}/eval.json")
+
+
+def test_evaluate_run_refuses_an_unfinished_run_and_flags_for_other_games(runs, tmp_path):
+    _, run_dirs = runs["ppo", "Qbert-v5"]
+    run_dir = tmp_path / "run"
+    shutil.copytree(run_dirs[0], run_dir)
+    (run_dir / "eval.json").unlink()
+    saved = torch.load(run_dir / "checkpoint.pt", weights_only=True)
+    saved["finished"] = False
+    torch.save(saved, run_dir / "checkpoint.pt")
+    proc = evaluate_cli("--run", str(run_dir))
+    assert proc.returncode == 1
+    assert proc.stderr == (
+        f"error: --run {run_dir} has not finished training; continue it with --resume {run_dir} first.\n"
+    )
+    proc = evaluate_cli("--run", str(run_dir), "--seed", "7")
+    assert proc.returncode == 1 and proc.stderr.startswith("error: --run plays the run's own games")
+    assert not (run_dir / "eval.json").exists()

@@ -94,7 +94,7 @@ def test_a_failing_step_is_named_with_its_reason_in_one_line(tmp_path):
     failed = {line.split()[1]: line for line in steps[1:]}
     assert all(line.startswith("FAILED  ") for line in failed.values()), steps
     for step in ("run_ppo", "run_p3o", "sps_thesis"):
-        assert "exit 1: error: --env-id Qbertt-v5 is not an envpool environment. Did you mean Qbert-v5" in failed[step]
+        assert "exit 1: error: --env-id Qbertt-v5 is not an envpool Atari game; did you mean Qbert-v5" in failed[step]
     for step in ("read_back_ppo", "read_back_p3o"):
         assert failed[step].endswith("exit 1: nothing to read back: the run wrote no eval.json")
     assert "run_ppo.json, run_p3o.json missing" in failed["compare"]
@@ -106,7 +106,10 @@ def test_the_scripts_train_without_imageio_ffmpeg(tmp_path):
         "import ppo_atari_envpool as ppo, p3o_atari_envpool as p3o\n"
         "for m in (ppo, p3o):\n"
         "    m.main(m.Args(num_envs=2, num_steps=16, num_minibatches=2, update_epochs=1, total_timesteps=32,"
-        " eval_episodes=1, run_name=m.ALGORITHM, cuda=False))\n"
+        " run_name=m.ALGORITHM, cuda=False))\n"
+        "from benchmark import evaluate\n"
+        "for m in (ppo, p3o):\n"
+        "    evaluate.main(evaluate.Args(run=f'runs/{m.ALGORITHM}', episodes=1, cuda=False))\n"
     )
     proc = subprocess.run(
         [sys.executable, "-c", code],

@@ -135,8 +135,9 @@ def test_a_second_call_skips_finished_pairs_and_remakes_the_tables(checked):
     [
         ({"MODE": "atari"}, "error: MODE must be thesis or cleanrl, got 'atari'."),
         ({"TOTAL_TIMESTEPS": "1e6"}, "error: TOTAL_TIMESTEPS must be a positive whole number, got '1e6'."),
-        ({"SEEDS": "1 two"}, "error: SEEDS must be whole numbers, got 'two'."),
-        ({"GAMES": "Breakout-v5 Qbertt-v5"}, "error: --env-id Qbertt-v5 is not an envpool environment. Did you mean"),
+        ({"SEEDS": "1 two"}, "error: SEEDS must be whole numbers without leading zeros, got 'two'."),
+        ({"SEEDS": "1 01"}, "error: SEEDS must be whole numbers without leading zeros, got '01'."),
+        ({"GAMES": "Breakout-v5 Qbertt-v5"}, "error: --env-id Qbertt-v5 is not an envpool Atari game; did you mean"),
         ({"SEEDS": "1 4294967296"}, "error: --seed must lie in"),
         ({"SEEDS": ""}, "error: SEEDS is empty."),  # set but empty: not the default seeds
         ({"GAMES": ""}, "error: GAMES is empty."),
@@ -164,3 +165,36 @@ def test_committed_runs_of_another_length_are_named_not_skipped(tmp_path):
         " TOTAL_TIMESTEPS=8192 gives; use another OUT.\n"
     )
     assert sorted(os.listdir(out)) == ["runs"] and sorted(os.listdir(tmp_path)) == ["out"]
+
+
+def test_the_ablation_mode_trains_p3o_with_each_piece_off_evaluated_beside_no_random_policy(tmp_path):
+    """MODE=ablation: benchmark/p3o_ablation.py's gae and value-beta-one changes in the thesis regime, with the game's
+    alpha, each evaluated on the seeds the committed P3O and PPO runs of its seed played; no random policy."""
+    out = tmp_path / "out"
+    proc = learning_check(tmp_path, out, MODE="ablation", GAMES="MsPacman-v5", SEEDS="3")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert sorted(p.name for p in (out / "runs").iterdir()) == [
+        "MsPacman-v5__p3o_gae__3",
+        "MsPacman-v5__p3o_value_beta_one__3",
+    ]
+    for change in ("gae", "value-beta-one"):
+        run = out / "runs" / f"MsPacman-v5__p3o_{change.replace('-', '_')}__3"
+        report = json.loads((run / "eval.json").read_text())
+        assert report["algorithm"] == f"p3o-{change}" and report["seeds"] == [1_000_003 + i for i in range(10)]
+        assert f"iteration 1/1 global_step={STEPS} " in (run / "train.log").read_text()
+        assert_logged(run, f"exp_name|p3o_{change.replace('-', '_')}", "ewma_alpha|0.75", "num_envs|16", "seed|3")
+        assert not (run / "checkpoint.pt").exists()
+    again = learning_check(tmp_path, out, MODE="ablation", GAMES="MsPacman-v5", SEEDS="3")
+    assert again.returncode == 0 and "MsPacman-v5 seed 3: done" in again.stdout
+
+
+def test_a_hand_edited_eval_json_is_named_in_one_sentence(tmp_path):
+    out = tmp_path / "out"
+    run = out / "runs" / "Breakout-v5__ppo_atari_envpool__1"
+    run.mkdir(parents=True)
+    (run / "eval.json").write_text('{"global_step": 4096, "returns": [1.0,')  # cut short by an editor
+    proc = learning_check(tmp_path, out, GAMES="Breakout-v5", SEEDS="1")
+    assert proc.returncode == 1 and proc.stdout == "" and "Traceback" not in proc.stderr
+    assert proc.stderr == (
+        f"error: {run}/eval.json is not an eval.json these tools wrote; mend it or remove that run's folder.\n"
+    )

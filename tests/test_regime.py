@@ -42,7 +42,6 @@ def test_a_configuration_trains_both_scripts_with_its_flags_and_copies_their_out
             "num_minibatches|4",
             "learning_rate|0.001",
             "anneal_lr|True",
-            "eval_episodes|0",
             "seed|1",
             "env_id|Breakout-v5",
         )

@@ -105,7 +105,7 @@ def train_logging(module, change_masked_steps, tmp_path, monkeypatch, shift_valu
     monkeypatch.chdir(tmp_path)
     name = f"changed{int(change_masked_steps)}"
     args = module.Args(env_id="Breakout-v5", num_envs=4, num_steps=128, num_minibatches=2, update_epochs=2)
-    args.total_timesteps, args.eval_episodes, args.seed, args.run_name = 1024, 0, 7, name
+    args.total_timesteps, args.seed, args.run_name = 1024, 7, name
     module.main(args)
     return scalars(tmp_path / "runs" / name), sum(flipped)
 

@@ -2,7 +2,10 @@
 iteration's TensorBoard points exactly once and the killed run's points before the checkpoint untouched;
 bad checkpoints and changed arguments are refused by name."""
 
+import builtins
+import contextlib
 import errno
+import fcntl
 import json
 import os
 import re
@@ -23,7 +26,7 @@ from helpers import ROOT, assert_refusal, hyperparameters, scalars
 SCRIPTS = {"ppo": ppo, "p3o": p3o}
 BATCH, ITERATIONS, UPDATES = 4 * 32, 10, 2  # UPDATES: minibatches x epochs per iteration
 FLAGS = ["--env-id", "Breakout-v5", "--num-envs", "4", "--num-steps", "32", "--num-minibatches", "2"]
-FLAGS += ["--update-epochs", "1", "--total-timesteps", str(BATCH * ITERATIONS), "--eval-episodes", "0", "--seed", "5"]
+FLAGS += ["--update-epochs", "1", "--total-timesteps", str(BATCH * ITERATIONS), "--seed", "5"]
 PER_ITERATION = ["losses/value_loss", "losses/entropy", "charts/learning_rate", "charts/SPS"]
 
 
@@ -182,20 +185,21 @@ def test_changed_arguments_are_refused(stopped_run, monkeypatch):
     assert_refusal(message, f"--resume {run_dir}/checkpoint.pt", "--num-envs 4 (now 8)")
     assert "--seed" not in message  # only what differs
     message = refusal(ppo, cwd, monkeypatch, args_for(ppo, learning_rate=3e-4, seed=6, resume=run_dir))
-    assert "--seed 5 (now 6), --run-name 's' (now None), --learning-rate 0.001 (now 0.0003)" in message
+    assert "--seed 5 (now 6), --learning-rate 0.001 (now 0.0003)" in message  # the folder's name is a run flag
     message = refusal(p3o, cwd, monkeypatch, args_for(p3o, resume=run_dir))
-    assert_refusal(message, f"--resume {run_dir}/checkpoint.pt", "ppo checkpoint", "ppo_atari_envpool.py")
+    assert_refusal(message, f"--resume {run_dir}/checkpoint.pt", "a ppo run's checkpoint", "its own script")
 
 
 def test_a_bare_resume_takes_the_saved_arguments(stopped_run, monkeypatch):
     # `--resume DIR` alone: every experiment flag not given takes the checkpoint's value
     cwd, run_dir, iteration = stopped_run
-    cli = ["--resume", run_dir, "--eval-episodes", "0"]
+    cli = ["--resume", run_dir, "--save-model"]
     monkeypatch.chdir(cwd)
-    with ppo.open_run(ppo.Args(resume=run_dir, eval_episodes=0), cli) as (args, opened, checkpoint):
+    with contextlib.ExitStack() as held:
+        args, opened, checkpoint, _ = ppo.open_run(held, ppo.Args(resume=run_dir, save_model=True), cli)
         assert opened == run_dir and checkpoint["iteration"] == iteration
     assert (args.num_envs, args.num_steps, args.seed, args.total_timesteps) == (4, 32, 5, BATCH * ITERATIONS)
-    assert args.eval_episodes == 0 and args.run_name == "s"
+    assert args.save_model and args.run_name == "s" and args.resume is None
 
 
 def test_an_in_process_resume_keeps_every_value_it_is_given(stopped_run, monkeypatch):
@@ -205,11 +209,13 @@ def test_an_in_process_resume_keeps_every_value_it_is_given(stopped_run, monkeyp
     cwd, run_dir, iteration = stopped_run
     monkeypatch.chdir(cwd)
     given = args_for(ppo, resume=run_dir, run_name="s", checkpoint_every=10)
-    with ppo.open_run(given) as (args, _, checkpoint):
+    with contextlib.ExitStack() as held:
+        args, _, checkpoint, _ = ppo.open_run(held, given, None)
         assert checkpoint["iteration"] == iteration and checkpoint["args"]["checkpoint_every"] == 0
     assert args.checkpoint_every == 10 and (args.batch_size, args.num_iterations) == (BATCH, ITERATIONS)
     cli = ["--resume", run_dir]  # the command line: what it leaves out keeps the run's value
-    with ppo.open_run(ppo.Args(resume=run_dir), cli) as (args, _, _):
+    with contextlib.ExitStack() as held:
+        args, _, _, _ = ppo.open_run(held, ppo.Args(resume=run_dir), cli)
         assert args.checkpoint_every == 0
 
 
@@ -227,8 +233,11 @@ def test_a_failure_before_training_lets_the_run_folder_go(algo, tmp_path, monkey
     monkeypatch.setattr(module, "make_env", failing_make_env)
     with pytest.raises(RuntimeError, match="no emulator today"):
         module.main(args_for(module, run_name="r"))
-    with module.hold("runs/r"):  # refused with "in use by" if the failed run still held it
-        assert open(tmp_path / "runs" / "r" / ".lock").read() == f"process {os.getpid()} on {socket.gethostname()}"
+    assert open(tmp_path / "runs" / "r" / ".lock").read() == f"process {os.getpid()} on {socket.gethostname()}"
+    with open(tmp_path / "runs" / "r" / ".lock") as lock:  # raises BlockingIOError if the failed run still held it
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    # and its signal handlers are gone with it: SIGINT is Python's KeyboardInterrupt again
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
 @pytest.mark.parametrize("damage", ["truncated", "garbage", "empty"])
@@ -238,7 +247,7 @@ def test_damaged_checkpoints_are_refused_by_name(damage, stopped_run, tmp_path, 
     bad = tmp_path / "checkpoint.pt"
     bad.write_bytes({"truncated": data[: len(data) // 2], "garbage": b"not a checkpoint" * 100, "empty": b""}[damage])
     message = refusal(ppo, tmp_path, monkeypatch, args_for(ppo, resume=str(bad)))
-    assert_refusal(message, f"--resume {bad}", "not a readable checkpoint")
+    assert_refusal(message, f"--resume {bad}", "is not a checkpoint these scripts can read")
 
 
 def test_a_model_file_is_not_a_checkpoint(stopped_run, tmp_path, monkeypatch):
@@ -247,13 +256,13 @@ def test_a_model_file_is_not_a_checkpoint(stopped_run, tmp_path, monkeypatch):
     model = {k: saved[k] for k in ("format", "algorithm", "args", "model_state_dict")}
     torch.save(model, tmp_path / "model.cleanrl_model")
     message = refusal(ppo, tmp_path, monkeypatch, args_for(ppo, resume=str(tmp_path / "model.cleanrl_model")))
-    assert_refusal(message, f"--resume {tmp_path}/model.cleanrl_model", "not a checkpoint")
+    assert_refusal(message, f"--resume {tmp_path}/model.cleanrl_model", "is not a checkpoint these scripts can read")
 
 
 def test_a_run_name_in_use_is_not_overwritten(stopped_run, monkeypatch):
     cwd, _, _ = stopped_run
     message = refusal(ppo, cwd, monkeypatch, args_for(ppo, run_name="s"))
-    assert_refusal(message, "runs/s", "--resume runs/s")
+    assert_refusal(message, "runs/s holds a run already", "continue it with --resume", "--run-name")
 
 
 def test_auto_resume_needs_a_run_name(tmp_path, monkeypatch):
@@ -273,7 +282,7 @@ def test_refusals_on_the_command_line_exit_1_with_one_sentence(stopped_run):
     cwd, run_dir, _ = stopped_run
     proc = run("p3o", cwd, "--resume", run_dir)
     assert proc.returncode == 1
-    assert_refusal(proc.stderr, f"--resume {run_dir}/checkpoint.pt", "ppo checkpoint", "ppo_atari_envpool.py")
+    assert_refusal(proc.stderr, f"--resume {run_dir}/checkpoint.pt", "a ppo run's checkpoint", "its own script")
 
 
 def test_points_logged_after_the_checkpoint_are_purged_on_resume(stopped_run, tmp_path):
@@ -290,12 +299,16 @@ def test_points_logged_after_the_checkpoint_are_purged_on_resume(stopped_run, tm
 
 
 def test_checkpoints_of_earlier_versions_still_resume(stopped_run, tmp_path):
-    # before the scripts recorded P3O ablations, checkpoints had no "ablation" key: a P3O one must resume
+    # a checkpoint as the scripts wrote them before evaluation moved to evaluate.py (commit 0dbe53f): the evaluation
+    # flags among its arguments, an "ablation" key, no random state, environment or action count
     rc, _, err = start_and_signal("p3o", tmp_path, signal.SIGTERM, 2, "--run-name", "old", "--checkpoint-every", "0")
     assert rc == 128 + signal.SIGTERM, err
     path = tmp_path / "runs" / "old" / "checkpoint.pt"
     saved = torch.load(path, weights_only=True)
-    del saved["ablation"]
+    for key in ("rng_state", "env_id", "num_actions"):
+        del saved[key]
+    saved["ablation"] = None
+    saved["args"] |= {"eval_episodes": 10, "eval_greedy": False, "capture_video": False}
     torch.save(saved, path)
     proc = run("p3o", tmp_path, "--resume", "runs/old")
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -332,7 +345,7 @@ def test_one_run_folder_takes_one_process(algo, tmp_path):
 
 def test_a_resume_keeps_the_runs_own_flags(tmp_path):
     # started with run flags, stopped, resumed exactly as the stop message says: the flags still hold
-    flags = ("--run-name", "f", "--save-model", "--eval-episodes", "2", "--checkpoint-every", "0", "--eval-greedy")
+    flags = ("--run-name", "f", "--save-model", "--checkpoint-every", "0")
     rc, out, err = start_and_signal("p3o", tmp_path, signal.SIGTERM, 2, *flags)
     assert rc == 128 + signal.SIGTERM, err
     again = re.search(r"continue with (--resume \S+)\n", out).group(1).split()
@@ -341,36 +354,40 @@ def test_a_resume_keeps_the_runs_own_flags(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     run_dir = tmp_path / "runs" / "f"
     assert (run_dir / "p3o_atari_envpool.cleanrl_model").is_file()
-    report = json.loads((run_dir / "eval.json").read_text())
-    assert len(report["returns"]) == 2 and report["greedy"]
+    assert torch.load(run_dir / "checkpoint.pt", weights_only=True)["args"]["checkpoint_every"] == 0
     # a flag given again on the resume command line wins over the run's
-    rc, out, err = start_and_signal("p3o", tmp_path, signal.SIGTERM, 2, "--run-name", "g", "--eval-episodes", "3")
+    rc, out, err = start_and_signal("p3o", tmp_path, signal.SIGTERM, 2, "--run-name", "g", "--checkpoint-every", "0")
     assert rc == 128 + signal.SIGTERM, err
     proc = subprocess.run(
-        [sys.executable, script, "--resume", "runs/g", "--eval-episodes", "1", "--save-model"],
+        [sys.executable, script, "--resume", "runs/g", "--checkpoint-every", "4", "--save-model"],
         cwd=tmp_path,
         capture_output=True,
         text=True,
         timeout=600,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert len(json.loads((tmp_path / "runs" / "g" / "eval.json").read_text())["returns"]) == 1
+    assert torch.load(tmp_path / "runs" / "g" / "checkpoint.pt", weights_only=True)["args"]["checkpoint_every"] == 4
     assert (tmp_path / "runs" / "g" / "p3o_atari_envpool.cleanrl_model").is_file()
 
 
-def test_a_start_killed_before_its_first_checkpoint_starts_again_clean(tmp_path):
+def test_a_start_killed_before_its_first_periodic_checkpoint_resumes_from_its_start(tmp_path):
+    """A new run writes a checkpoint before it logs anything, so a start killed at any point is resumed (from
+    iteration 0, as the same run: the same seed, the same initial weights) and every point is logged once."""
     rc, _, _ = start_and_signal("ppo", tmp_path, signal.SIGKILL, 3, "--run-name", "c", "--checkpoint-every", "0")
     assert rc == -signal.SIGKILL
     run_dir = tmp_path / "runs" / "c"
-    assert not (run_dir / "checkpoint.pt").exists() and len(list(run_dir.glob("events.out.tfevents.*"))) == 1
+    assert torch.load(run_dir / "checkpoint.pt", weights_only=True)["iteration"] == 0
     proc = run("ppo", tmp_path, "--run-name", "c", "--auto-resume")
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "runs/c held no checkpoint: removed what an earlier start left (1 file(s)); starting afresh" in proc.stdout
-    assert len(list(run_dir.glob("events.out.tfevents.*"))) == 1
+    assert "resuming runs/c after iteration 0 (0 steps)" in proc.stdout
     after = scalars(str(run_dir))
     for tag in PER_ITERATION:
         assert [s for s, _ in after[tag]] == [BATCH * i for i in range(1, ITERATIONS + 1)], tag
-    assert "|param|value|" in hyperparameters(str(run_dir))
+    assert hyperparameters(str(run_dir)).count("|param|value|") == 1
+    # resumed from its start, it is the run an uninterrupted start makes: the same numbers
+    whole = run("ppo", tmp_path, "--run-name", "whole")
+    assert whole.returncode == 0, whole.stderr[-3000:]
+    assert scalars(str(tmp_path / "runs" / "whole"))["losses/value_loss"] == after["losses/value_loss"]
 
 
 @pytest.mark.parametrize("algo", SCRIPTS)
@@ -405,25 +422,37 @@ def test_a_failed_checkpoint_write_leaves_the_previous_checkpoint_whole(stopped_
     shutil.copytree(stopped_dir, tmp_path / "runs" / "d")
     path = str(tmp_path / "runs" / "d" / "checkpoint.pt")
     good = torch.load(path, weights_only=True)
-    real_save = torch.save
+    real_open = builtins.open
 
-    def save_half_then_fail(obj, f):
-        real_save(obj, f)
-        with open(f, "r+b") as handle:
-            handle.truncate(os.path.getsize(f) // 2)
-        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    class HalfWritten:  # writes half of what it is given, then the disk is full
+        def __init__(self, f):
+            self.f = f
 
-    monkeypatch.setattr(torch, "save", save_half_then_fail)
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.f.close()
+
+        def write(self, data):
+            self.f.write(bytes(data)[: len(data) // 2])
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def full_disk_open(file, mode="r", *args, **kwargs):
+        f = real_open(file, mode, *args, **kwargs)
+        return HalfWritten(f) if str(file).endswith(".tmp") and "w" in mode else f
+
+    monkeypatch.setattr(builtins, "open", full_disk_open)
     agent = ppo.Agent(4)
     args = ppo.Args(num_envs=4, num_steps=32, num_minibatches=2, total_timesteps=BATCH * ITERATIONS)
     assert args.batch_size == BATCH
     optimizer = torch.optim.Adam(agent.parameters())
     with pytest.raises(SystemExit) as excinfo:
-        ppo.save_checkpoint(path, agent, optimizer, args, iteration + 1)
-    message = excinfo.value.code
-    assert message.startswith(f"error: writing {path} failed (No space left on device; ")
-    assert message.endswith(
-        f" MB free there), so it is as it was before; make room and continue with --resume {os.path.dirname(path)}."
+        ppo.save(path, agent, args, optimizer, iteration + 1)
+    monkeypatch.undo()
+    assert excinfo.value.code == (
+        f"error: writing {path} failed (No space left on device), so it is as it was; make room and continue with"
+        f" --resume {os.path.dirname(path)}."
     )
     assert not os.path.exists(f"{path}.tmp")
     again = torch.load(path, weights_only=True)
@@ -433,21 +462,21 @@ def test_a_failed_checkpoint_write_leaves_the_previous_checkpoint_whole(stopped_
 
 
 @pytest.mark.parametrize("algo", SCRIPTS)
-def test_a_failure_after_training_keeps_the_checkpoint_to_redo_the_last_stage(algo, tmp_path, monkeypatch):
+def test_a_failed_model_file_keeps_the_checkpoint_to_redo_the_last_stage(algo, tmp_path, monkeypatch):
+    """The model file fails to be written after training (a full disk): the last iteration's checkpoint is kept, not
+    marked finished, and the resume the sentence names writes the model and the finished checkpoint, trains nothing."""
     module = SCRIPTS[algo]
+    save = module.save
 
-    def broken_evaluation(*args, **kwargs):
-        raise RuntimeError("the evaluation broke")
+    def full_disk_at_the_model(path, *args, **kwargs):
+        if path.endswith(".cleanrl_model"):
+            sys.exit(f"error: writing {path} failed (No space left on device)")
+        return save(path, *args, **kwargs)
 
-    monkeypatch.setattr(module, "evaluate", broken_evaluation)
+    monkeypatch.setattr(module, "save", full_disk_at_the_model)
     monkeypatch.chdir(tmp_path)
-    args = args_for(module, run_name="last", eval_episodes=1, save_model=True, cuda=False)
-    with pytest.raises(SystemExit) as excinfo:
-        module.main(args)
-    assert excinfo.value.code == (
-        "error: the evaluation or model saving after training failed (RuntimeError: the evaluation broke); the trained"
-        " agent is kept in runs/last/checkpoint.pt: run again with --resume runs/last to redo them."
-    )
+    with pytest.raises(SystemExit, match="No space left on device"):
+        module.main(args_for(module, run_name="last", save_model=True, cuda=False))
     saved = torch.load(tmp_path / "runs" / "last" / "checkpoint.pt", weights_only=True)
     assert saved["iteration"] == ITERATIONS and not saved["finished"]
     monkeypatch.undo()
@@ -456,33 +485,55 @@ def test_a_failure_after_training_keeps_the_checkpoint_to_redo_the_last_stage(al
         [sys.executable, script, "--resume", "runs/last"], cwd=tmp_path, capture_output=True, text=True, timeout=600
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert f"iteration {ITERATIONS}/{ITERATIONS}" not in proc.stdout and "eval: 1 games, return " in proc.stdout
+    assert f"resuming runs/last after iteration {ITERATIONS}" in proc.stdout and "iteration 1/" not in proc.stdout
     assert (tmp_path / "runs" / "last" / f"{algo}_atari_envpool.cleanrl_model").is_file()
     assert torch.load(tmp_path / "runs" / "last" / "checkpoint.pt", weights_only=True)["finished"]
 
 
-def test_a_full_disk_stops_the_run_with_a_sentence_and_keeps_its_checkpoint(tmp_path):
-    # a real full disk: runs/ is a 30 MB tmpfs, room for one 20 MB checkpoint and not for its replacement
+def full_disk(tmp_path, megabytes):
+    """runs/ as a tmpfs of this size (a real full disk), unmounted when the `with` ends."""
     if os.geteuid() != 0:
         pytest.skip("mounting a small tmpfs needs root")
     (tmp_path / "runs").mkdir()
     mount = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "size=30M", "tmpfs", str(tmp_path / "runs")], capture_output=True
+        ["mount", "-t", "tmpfs", "-o", f"size={megabytes}M", "tmpfs", str(tmp_path / "runs")], capture_output=True
     )
     if mount.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs here: {mount.stderr.decode().strip()}")
-    try:
+    mounted = contextlib.ExitStack()
+    mounted.callback(subprocess.run, ["umount", str(tmp_path / "runs")], check=True)
+    return mounted
+
+
+def test_a_full_disk_stops_the_run_with_a_sentence_and_keeps_its_checkpoint(tmp_path):
+    # runs/ is a 30 MB tmpfs: room for the first checkpoint (7 MB: the network, and Adam with no state yet) and the
+    # next (20 MB: Adam's moments too) beside it, and not for a third while the second is there
+    with full_disk(tmp_path, 30):
         proc = run("ppo", tmp_path, "--run-name", "full", "--checkpoint-every", "1")
         assert proc.returncode == 1, proc.stdout
         (line,) = [x for x in proc.stderr.splitlines() if x.startswith("error: ")]
-        assert line.startswith("error: writing runs/full/checkpoint.pt failed (") and line.endswith(
-            " MB free there), so it is as it was before; make room and continue with --resume runs/full."
+        assert line == (
+            "error: writing runs/full/checkpoint.pt failed (No space left on device), so it is as it was; make room"
+            " and continue with --resume runs/full."
         )
-        assert "Traceback" not in proc.stderr and "iteration 2/" in proc.stdout
+        assert "Traceback" not in proc.stderr and "iteration 2/" in proc.stdout and "iteration 3/" not in proc.stdout
         saved = torch.load(tmp_path / "runs" / "full" / "checkpoint.pt", weights_only=True)
         assert saved["iteration"] == 1 and not (tmp_path / "runs" / "full" / "checkpoint.pt.tmp").exists()
-    finally:
-        subprocess.run(["umount", str(tmp_path / "runs")], check=True)
+
+
+def test_a_full_disk_at_the_first_checkpoint_leaves_a_run_that_starts_again(tmp_path):
+    # runs/ is a 4 MB tmpfs: not even the first checkpoint (7 MB) fits. Nothing was logged, so the advice is to run the
+    # same command again (there is nothing to resume), which then works once there is room
+    with full_disk(tmp_path, 4):
+        proc = run("ppo", tmp_path, "--run-name", "first")
+        assert proc.returncode == 1
+        assert proc.stderr.splitlines()[-1] + "\n" == (
+            "error: writing runs/first/checkpoint.pt failed (No space left on device), so it is as it was; make room"
+            " and run it again.\n"
+        )
+        assert os.listdir(tmp_path / "runs" / "first") == [".lock"]
+    again = run("ppo", tmp_path, "--run-name", "first", "--total-timesteps", str(BATCH))
+    assert again.returncode == 0, again.stderr[-3000:]
 
 
 def test_a_resume_may_restate_the_runs_own_values(tmp_path):
@@ -507,74 +558,9 @@ def test_a_resume_may_restate_the_runs_own_values(tmp_path):
     assert_refusal(other.stderr, "--resume runs/r/checkpoint.pt", f"--total-timesteps {2 * BATCH} (now {4 * BATCH})")
 
 
-def eval_points(run_dir) -> list[tuple[int, float]]:
-    return scalars(str(run_dir)).get("eval/episodic_return", [])
-
-
-@pytest.mark.parametrize("algo", SCRIPTS)
-def test_a_redone_last_stage_logs_its_evaluation_once(algo, tmp_path, monkeypatch):
-    """The README's way out of a failed final stage (make room, then --resume) must not log the evaluation a
-    second time: the model file fails to be written after the evaluation was logged; the resume writes the
-    model and the finished checkpoint, and the event file and eval.json hold one evaluation each."""
-    module = SCRIPTS[algo]
-    save = module.save
-
-    def full_disk_at_the_model(path, *args, **kwargs):
-        if path.endswith(".cleanrl_model"):
-            sys.exit(f"error: writing {path} failed (No space left on device)")
-        return save(path, *args, **kwargs)
-
-    monkeypatch.setattr(module, "save", full_disk_at_the_model)
-    monkeypatch.chdir(tmp_path)
-    args = args_for(module, run_name="m", eval_episodes=2, save_model=True, cuda=False, total_timesteps=2 * BATCH)
-    with pytest.raises(SystemExit, match="No space left on device"):
-        module.main(args)
-    run_dir = tmp_path / "runs" / "m"
-    first = eval_points(run_dir)
-    assert [step for step, _ in first] == [0, 1] and (run_dir / "eval.json").is_file()
-    monkeypatch.undo()
-    script = os.path.join(ROOT, f"{algo}_atari_envpool.py")
-    proc = subprocess.run([sys.executable, script, "--resume", "runs/m"], cwd=tmp_path, capture_output=True, text=True)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "runs/m/eval.json: this run's evaluation was logged before; not played again" in proc.stdout
-    assert "eval: " not in proc.stdout and (run_dir / f"{algo}_atari_envpool.cleanrl_model").is_file()
-    assert eval_points(run_dir) == first  # once, as eval.json
-    assert json.loads((run_dir / "eval.json").read_text())["returns"] == [v for _, v in first]
-    assert torch.load(run_dir / "checkpoint.pt", weights_only=True)["finished"]
-
-
-def test_a_signal_in_the_final_evaluation_stops_the_run_and_the_resume_redoes_only_that_stage(tmp_path):
-    proc = subprocess.Popen(
-        command("p3o", "--run-name", "f", "--eval-episodes", "8"),
-        cwd=tmp_path,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    lines = []
-    for line in proc.stdout:
-        lines.append(line)
-        if line.startswith("evaluating: 8 full games"):  # 8 full games of an untrained agent: seconds
-            proc.send_signal(signal.SIGTERM)
-            break
-    out, err = proc.communicate(timeout=300)
-    out = "".join(lines) + out
-    assert proc.returncode == 128 + signal.SIGTERM, (out, err)
-    assert "stopped by signal 15 in the final stage; continue with --resume runs/f" in out and "Traceback" not in err
-    run_dir = tmp_path / "runs" / "f"
-    saved = torch.load(run_dir / "checkpoint.pt", weights_only=True)
-    assert saved["iteration"] == ITERATIONS and not saved["finished"]
-    assert not (run_dir / "eval.json").exists() and eval_points(run_dir) == []
-    resumed = run("p3o", tmp_path, "--run-name", "f", "--eval-episodes", "8", "--auto-resume")
-    assert resumed.returncode == 0, resumed.stderr[-3000:]
-    assert f"iteration {ITERATIONS}/" not in resumed.stdout and "eval: 8 games, return " in resumed.stdout
-    assert [step for step, _ in eval_points(run_dir)] == list(range(8))
-    assert torch.load(run_dir / "checkpoint.pt", weights_only=True)["finished"]
-
-
 def test_a_finished_run_without_its_checkpoint_keeps_its_logs(tmp_path):
-    """A finished run with --eval-episodes 0 (as every regime run is) whose checkpoint was deleted is not a start
-    killed before its first checkpoint: --auto-resume refuses in one sentence and deletes nothing."""
+    """A finished run whose checkpoint was deleted (every run writes a checkpoint before it logs anything, so its event
+    files without one are a run's that is done with): --auto-resume refuses in one sentence and deletes nothing."""
     proc = run("ppo", tmp_path, "--run-name", "done", "--total-timesteps", str(2 * BATCH), "--checkpoint-every", "0")
     assert proc.returncode == 0, proc.stderr[-3000:]
     run_dir = tmp_path / "runs" / "done"
@@ -582,7 +568,7 @@ def test_a_finished_run_without_its_checkpoint_keeps_its_logs(tmp_path):
     files = {p.name: p.read_bytes() for p in run_dir.glob("events.out.tfevents.*")}
     again = run("ppo", tmp_path, "--run-name", "done", "--total-timesteps", str(2 * BATCH), "--auto-resume")
     assert again.returncode == 1
-    assert_refusal(again.stderr, "runs/done", "finished run", "--run-name")
+    assert_refusal(again.stderr, "runs/done holds a run already", "--run-name")
     assert {p.name: p.read_bytes() for p in run_dir.glob("events.out.tfevents.*")} == files and files
     assert "iteration 1/" not in again.stdout
 
@@ -624,3 +610,145 @@ def test_weights_blown_up_without_a_non_finite_loss_stop_the_run_before_a_checkp
     with torch.no_grad():
         logits = agent.actor(agent.hidden(torch.randint(0, 256, (8, 4, 84, 84), dtype=torch.uint8)))
     assert torch.isfinite(logits).all()
+
+
+EVALUATE = os.path.join(ROOT, "benchmark", "evaluate.py")
+
+
+def eval_points(run_dir) -> list[tuple[int, float]]:
+    return scalars(str(run_dir)).get("eval/episodic_return", [])
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """A finished P3O run, not yet evaluated: (cwd, run folder)."""
+    cwd = tmp_path_factory.mktemp("trained")
+    proc = run("p3o", cwd, "--run-name", "t", "--total-timesteps", str(2 * BATCH))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return cwd, cwd / "runs" / "t"
+
+
+def test_an_evaluation_that_fails_before_its_record_is_redone_once(trained, tmp_path, monkeypatch):
+    """eval.json is the record that a run was evaluated, written last: an evaluation that fails after logging its points
+    but before eval.json (a full disk) leaves no record, and the redo the README gives logs its points once."""
+    from benchmark import evaluate
+
+    shutil.copytree(trained[1], tmp_path / "t")
+    run_dir = tmp_path / "t"
+    real_replace = os.replace
+
+    def full_disk_at_the_record(src, dst):
+        if str(dst).endswith("eval.json"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", full_disk_at_the_record)
+    with pytest.raises(OSError):
+        evaluate.main(evaluate.Args(run=str(run_dir), episodes=2, cuda=False))
+    monkeypatch.undo()
+    assert not (run_dir / "eval.json").exists() and [s for s, _ in eval_points(run_dir)] == [0, 1]
+    proc = subprocess.run(
+        [sys.executable, EVALUATE, "--run", str(run_dir), "--episodes", "2"], capture_output=True, text=True
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    first = eval_points(run_dir)
+    assert [s for s, _ in first] == [0, 1]  # once, as eval.json
+    assert json.loads((run_dir / "eval.json").read_text())["returns"] == [v for _, v in first]
+    again = subprocess.run([sys.executable, EVALUATE, "--run", str(run_dir)], capture_output=True, text=True)
+    assert again.returncode == 0 and "not played again" in again.stdout and eval_points(run_dir) == first
+
+
+def test_a_signal_during_the_evaluation_stops_it_and_writes_nothing(trained, tmp_path):
+    shutil.copytree(trained[1], tmp_path / "t")
+    run_dir = tmp_path / "t"
+    before = sorted(os.listdir(run_dir))
+    cmd = [sys.executable, EVALUATE, "--run", str(run_dir), "--episodes", "8", "--video"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines = []
+    for line in proc.stdout:
+        lines.append(line)
+        if line.startswith("device: "):  # the games start now: 8 full games with videos of an untrained agent
+            proc.send_signal(signal.SIGTERM)
+            break
+    out, err = proc.communicate(timeout=300)
+    out = "".join(lines) + out
+    assert proc.returncode == 128 + signal.SIGTERM, (out, err)
+    assert "stopped by signal 15: nothing was written" in out and "Traceback" not in err
+    assert sorted(os.listdir(run_dir)) == before and not [p for p in os.listdir(tmp_path) if p.startswith(".")]
+    resumed = subprocess.run([*cmd[:-1]], capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert [step for step, _ in eval_points(run_dir)] == list(range(8))
+
+
+def test_a_run_whose_output_pipe_closes_goes_on_to_its_checkpoint(tmp_path):
+    """`... | tee log` ended by Ctrl-C: the reader of the run's output is gone before the run has stopped. The run's
+    next print must not kill it before its checkpoint: it checkpoints the iteration the signal ended and exits
+    128 + signal, as with its output intact."""
+    cmd = command("ppo", "--run-name", "p", "--checkpoint-every", "0")
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    for line in proc.stdout:
+        if line.startswith("iteration 2/"):
+            break
+    proc.stdout.close()  # the reader goes away (tee died with the Ctrl-C) ...
+    proc.send_signal(signal.SIGINT)  # ... and the run gets the Ctrl-C too
+    err = proc.stderr.read()
+    assert proc.wait(timeout=300) == 128 + signal.SIGINT, err
+    assert "Traceback" not in err and "BrokenPipeError" not in err
+    saved = torch.load(tmp_path / "runs" / "p" / "checkpoint.pt", weights_only=True)
+    assert saved["iteration"] >= 2 and not saved["finished"]
+
+
+def test_a_signal_while_the_last_checkpoint_is_written_is_one_sentence_and_128_plus_signal(tmp_path, monkeypatch):
+    """The one handler only notes a signal: one that comes while the last iteration's checkpoint is being written
+    interrupts nothing (no `.tmp` left, no traceback); the run says how to continue and exits 128 + signal."""
+    save = ppo.save
+
+    def signalled_while_saving(path, agent, args, optimizer=None, iteration=0, **kwargs):
+        if iteration == ITERATIONS:
+            os.kill(os.getpid(), signal.SIGINT)
+        return save(path, agent, args, optimizer, iteration, **kwargs)
+
+    monkeypatch.setattr(ppo, "save", signalled_while_saving)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as excinfo:
+        ppo.main(args_for(ppo, run_name="last", cuda=False))
+    assert excinfo.value.code == 128 + signal.SIGINT
+    assert not (tmp_path / "runs" / "last" / "checkpoint.pt.tmp").exists()
+    saved = torch.load(tmp_path / "runs" / "last" / "checkpoint.pt", weights_only=True)
+    assert saved["iteration"] == ITERATIONS and not saved["finished"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler went with the run
+    monkeypatch.undo()
+    proc = run("ppo", tmp_path, "--resume", "runs/last")
+    assert proc.returncode == 0 and torch.load(tmp_path / "runs" / "last" / "checkpoint.pt")["finished"]
+
+
+def test_auto_resume_of_a_copied_run_folder_continues_the_copy(stopped_run, tmp_path):
+    """A run folder copied (or renamed) and continued under its new name is that folder's run: the name is a run
+    flag, and the advice the run gives names the folder it is in, not the one it was started in."""
+    _, stopped_dir, iteration = stopped_run
+    shutil.copytree(stopped_dir, tmp_path / "runs" / "copy")
+    proc = subprocess.Popen(
+        command("ppo", "--run-name", "copy", "--auto-resume"), cwd=tmp_path, stdout=subprocess.PIPE, text=True
+    )
+    out = []
+    for line in proc.stdout:
+        out.append(line)
+        if line.startswith(f"iteration {iteration + 1}/"):
+            proc.send_signal(signal.SIGTERM)
+            break
+    out = "".join(out) + proc.communicate(timeout=300)[0]
+    assert proc.returncode == 128 + signal.SIGTERM, out
+    assert f"resuming runs/copy after iteration {iteration}" in out
+    assert "continue with --resume runs/copy\n" in out and "runs/s" not in out
+    assert not os.path.exists(tmp_path / "runs" / "s")
+
+
+def test_an_unreadable_checkpoint_is_named_with_the_flag_that_was_given(tmp_path):
+    (tmp_path / "runs" / "bad").mkdir(parents=True)
+    (tmp_path / "runs" / "bad" / "checkpoint.pt").write_bytes(b"not a checkpoint" * 100)
+    proc = run("ppo", tmp_path, "--run-name", "bad", "--auto-resume")
+    assert proc.returncode == 1
+    assert proc.stderr == (
+        "error: --auto-resume runs/bad/checkpoint.pt is not a checkpoint these scripts can read (damaged, or another"
+        " kind of file).\n"
+    )

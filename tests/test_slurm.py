@@ -129,7 +129,7 @@ def daemon_logs(base):
 
 
 def sweep(slurm, cwd, **knobs):
-    drop = ("GAMES", "SEEDS", "EXTRA_ARGS", "DRY_RUN", "OMP_NUM_THREADS")
+    drop = ("GAMES", "SEEDS", "EXTRA_ARGS", "DRY_RUN", "OMP_NUM_THREADS", "EVAL_EPISODES")
     env = {k: v for k, v in os.environ.items() if k not in drop}
     env |= {"SLURM": "1", "SLURM_CONF": slurm["SLURM_CONF"], "PYTHON": python_printing_threads(cwd), **knobs}
     env["SBATCH_ARGS"] = "--cpus-per-task=1 --time=30"  # no GPU here
@@ -175,8 +175,9 @@ TINY = "--num-envs 4 --num-steps 32 --num-minibatches 2 --update-epochs 1 --no-c
 
 def test_the_array_job_runs_every_run_and_a_second_sweep_submits_nothing(slurm, tmp_path):
     knobs = {"GAMES": "Breakout-v5 Qbert-v5", "SEEDS": "1", "TOTAL_TIMESTEPS": "256", "WORKERS": "2", "GROUP": "grid"}
-    knobs["EXTRA_ARGS"] = f"{TINY} --eval-episodes 1"
+    knobs |= {"EXTRA_ARGS": TINY, "EVAL_EPISODES": "1"}
     commands = sweep(slurm, tmp_path, DRY_RUN="1", **knobs).stdout.splitlines()[:4]
+    assert not any(command.startswith("#") for command in commands)
     job = submitted(sweep(slurm, tmp_path, **knobs))
     states = wait_for(
         slurm, job, lambda s: len(s) == 4 and all(state in ("COMPLETED", "FAILED") for state, _ in s.values())
@@ -203,7 +204,7 @@ def test_the_array_job_runs_every_run_and_a_second_sweep_submits_nothing(slurm, 
 def test_preempted_and_signalled_tasks_checkpoint_requeue_and_resume(slurm, tmp_path):
     iterations = 16
     knobs = {"GAMES": "Breakout-v5", "SEEDS": "1", "TOTAL_TIMESTEPS": str(128 * iterations), "WORKERS": "2"}
-    knobs |= {"GROUP": "long", "EXTRA_ARGS": f"{TINY} --eval-episodes 0"}
+    knobs |= {"GROUP": "long", "EXTRA_ARGS": TINY, "EVAL_EPISODES": "0"}
     job = submitted(sweep(slurm, tmp_path, **knobs))
     logs = tmp_path / "runs" / "long" / "logs"
     env = {**os.environ, "SLURM_CONF": slurm["SLURM_CONF"]}

@@ -18,7 +18,7 @@ THESIS_GAMES = ["Breakout-v5", "Freeway-v5", "Seaquest-v5", "Riverraid-v5", "Qbe
 
 def sweep(env, cwd):
     knobs = ("GAMES", "SEEDS", "EXTRA_ARGS", "SLURM", "DRY_RUN", "ALGOS", "WORKERS", "GROUP", "TOTAL_TIMESTEPS")
-    knobs += ("OMP_NUM_THREADS",)
+    knobs += ("OMP_NUM_THREADS", "EVAL_EPISODES")
     keep = {k: v for k, v in os.environ.items() if k not in knobs}
     # the sweep checks every command with the training scripts' own parser, in this python
     keep["PYTHON"] = sys.executable
@@ -28,8 +28,12 @@ def sweep(env, cwd):
 def test_dry_run_lists_the_thesis_grid_with_the_thesis_alphas(tmp_path):
     proc = sweep({"DRY_RUN": "1"}, tmp_path)
     assert proc.returncode == 0, proc.stderr
-    lines = proc.stdout.strip().splitlines()
+    lines = [line for line in proc.stdout.strip().splitlines() if not line.startswith("#")]
     assert len(lines) == 6 * 10 * 2
+    # each run is then evaluated on 10 games by evaluate.py --run
+    assert (
+        "# then, for each run: " in proc.stdout and "benchmark/evaluate.py --run runs/RUN --episodes 10" in proc.stdout
+    )
     seen = set()
     for line in lines:
         game = re.search(r"--env-id (\S+)", line).group(1)
@@ -58,14 +62,15 @@ def test_dry_run_slurm_prints_one_requeueing_job_array(tmp_path):
 
 def test_knobs_override_the_grid(tmp_path):
     env = {"DRY_RUN": "1", "GAMES": "Pong-v5", "SEEDS": "7 8", "TOTAL_TIMESTEPS": "4096", "EXTRA_ARGS": "--num-envs 8"}
-    lines = sweep(env, tmp_path).stdout.strip().splitlines()
+    lines = sweep(env | {"EVAL_EPISODES": "0"}, tmp_path).stdout.strip().splitlines()
     assert len(lines) == 4
     assert all("--env-id Pong-v5" in x and "--total-timesteps 4096" in x and x.endswith("--num-envs 8") for x in lines)
 
 
 def test_local_mode_resumes_unfinished_runs_runs_workers_at_a_time_and_skips_finished_ones(tmp_path):
-    tiny = "--num-envs 4 --num-steps 32 --num-minibatches 2 --update-epochs 1 --eval-episodes 1"
+    tiny = "--num-envs 4 --num-steps 32 --num-minibatches 2 --update-epochs 1"
     env = {
+        "EVAL_EPISODES": "1",
         "GAMES": "Breakout-v5 Qbert-v5",
         "SEEDS": "1",
         "TOTAL_TIMESTEPS": "512",
@@ -75,7 +80,7 @@ def test_local_mode_resumes_unfinished_runs_runs_workers_at_a_time_and_skips_fin
         "PYTHON": python_printing_threads(tmp_path),
     }
     # an unfinished run: one of the grid's own commands, stopped by SIGTERM after its first iteration
-    commands = sweep(env | {"DRY_RUN": "1"}, tmp_path).stdout.splitlines()
+    commands = [c for c in sweep(env | {"DRY_RUN": "1"}, tmp_path).stdout.splitlines() if not c.startswith("#")]
     (command,) = [c for c in commands if "--env-id Qbert-v5" in c and "p3o_atari_envpool.py" in c]
     proc = subprocess.Popen(shlex.split(command), cwd=tmp_path, stdout=subprocess.PIPE, text=True)
     for line in proc.stdout:
@@ -122,9 +127,7 @@ def test_local_mode_fails_with_status_1_when_a_run_fails(tmp_path):
     env = {"GAMES": "Breakout-v5", "SEEDS": "1", "GROUP": "bad", "PYTHON": sys.executable, "WORKERS": "2"}
     (tmp_path / "runs" / "bad").mkdir(parents=True)
     (tmp_path / "runs" / "bad" / "Breakout-v5__p3o_atari_envpool__1").write_text("in the way")
-    proc = sweep(
-        env | {"EXTRA_ARGS": "--num-envs 4 --num-steps 32 --eval-episodes 0", "TOTAL_TIMESTEPS": "128"}, tmp_path
-    )
+    proc = sweep(env | {"EXTRA_ARGS": "--num-envs 4 --num-steps 32", "TOTAL_TIMESTEPS": "128"}, tmp_path)
     assert proc.returncode == 1
     log = "runs/bad/logs/Breakout-v5__p3o_atari_envpool__1.log"
     assert f"FAILED (see {log}): " in proc.stdout
@@ -137,16 +140,21 @@ def test_local_mode_fails_with_status_1_when_a_run_fails(tmp_path):
 @pytest.mark.parametrize(
     "knobs,sentence",
     [
-        ({"GAMES": "Breakout-v5 Qbertt-v5"}, "error: --env-id Qbertt-v5 is not an envpool environment. Did you mean "),
-        ({"GAMES": "CartPole-v1"}, "error: --env-id CartPole-v1 is an envpool environment but not an Atari game."),
+        ({"GAMES": "Breakout-v5 Qbertt-v5"}, "error: --env-id Qbertt-v5 is not an envpool Atari game; did you mean "),
+        ({"GAMES": "CartPole-v1"}, "error: --env-id CartPole-v1 is not an envpool Atari game; did you mean an id"),
         ({"GAMES": " "}, "error: GAMES is empty."),
-        ({"SEEDS": "1 2x"}, "error: SEEDS must be whole numbers, got '2x'."),
+        ({"SEEDS": "1 2x"}, "error: SEEDS must be whole numbers without leading zeros, got '2x'."),
+        ({"SEEDS": "1 01"}, "error: SEEDS must be whole numbers without leading zeros, got '01'."),
         ({"SEEDS": "4294967296"}, "error: --seed must lie in [0, "),
         ({"TOTAL_TIMESTEPS": "1e6"}, "error: TOTAL_TIMESTEPS must be a positive whole number, got '1e6'."),
         ({"TOTAL_TIMESTEPS": "0"}, "error: TOTAL_TIMESTEPS must be a positive whole number, got '0'."),
         ({"WORKERS": "0"}, "error: WORKERS must be a whole number of at least 1, got '0'."),
         ({"WORKERS": "two"}, "error: WORKERS must be a whole number of at least 1, got 'two'."),
-        ({"ALGOS": "ppo a2c"}, "error: ALGOS must be ppo, p3o or both, got 'a2c'."),
+        (
+            {"ALGOS": "ppo a2c"},
+            "error: ALGOS must be ppo, p3o or P3O ablations (p3o-gae, p3o-value-beta-one, p3o-batch-minmax), got"
+            " 'a2c'.",
+        ),
         ({"SIGNAL_SECONDS": "-5"}, "error: SIGNAL_SECONDS must be a whole number, got '-5'."),
         ({"EXTRA_ARGS": "--learning-rate nan"}, "error: --learning-rate must be a finite number, got nan."),
         ({"GROUP": "../elsewhere"}, "error: --run-name '../elsewhere/Breakout-v5__ppo_atari_envpool__1' must be a"),
@@ -183,7 +191,7 @@ def test_local_mode_fails_with_status_1_when_a_run_fails(tmp_path):
 def test_bad_knobs_are_refused_before_anything_starts_or_is_submitted(knobs, sentence, mode, tmp_path):
     env = {"GAMES": "Breakout-v5", "SEEDS": "1", "PYTHON": sys.executable, "SBATCH_ARGS": "--no-such-sbatch"}
     # tiny runs, should a refusal ever fail to come
-    env |= {"TOTAL_TIMESTEPS": "128", "EXTRA_ARGS": "--num-envs 4 --num-steps 32 --num-minibatches 2 --eval-episodes 0"}
+    env |= {"TOTAL_TIMESTEPS": "128", "EXTRA_ARGS": "--num-envs 4 --num-steps 32 --num-minibatches 2"}
     proc = sweep(env | mode | knobs, tmp_path)
     assert proc.returncode == 1 and proc.stdout == ""
     assert proc.stderr.startswith(sentence) and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
@@ -191,12 +199,13 @@ def test_bad_knobs_are_refused_before_anything_starts_or_is_submitted(knobs, sen
 
 
 def test_algos_runs_one_script_of_the_grid(tmp_path):
-    lines = sweep({"DRY_RUN": "1", "GAMES": "Qbert-v5", "SEEDS": "1 2", "ALGOS": "p3o"}, tmp_path).stdout.splitlines()
+    knobs = {"DRY_RUN": "1", "GAMES": "Qbert-v5", "SEEDS": "1 2", "ALGOS": "p3o", "EVAL_EPISODES": "0"}
+    lines = sweep(knobs, tmp_path).stdout.splitlines()
     assert len(lines) == 2 and all("p3o_atari_envpool.py" in line for line in lines)
 
 
 def test_dry_run_true_is_a_dry_run(tmp_path):
-    proc = sweep({"DRY_RUN": "true", "GAMES": "Breakout-v5", "SEEDS": "1"}, tmp_path)
+    proc = sweep({"DRY_RUN": "true", "GAMES": "Breakout-v5", "SEEDS": "1", "EVAL_EPISODES": "0"}, tmp_path)
     assert proc.returncode == 0 and len(proc.stdout.splitlines()) == 2 and not (tmp_path / "runs").exists()
 
 
@@ -206,11 +215,11 @@ def test_runs_made_with_other_settings_are_named_not_skipped_or_resumed(tmp_path
     import ppo_atari_envpool as ppo
 
     env = {"GAMES": "Breakout-v5", "SEEDS": "1", "ALGOS": "ppo", "GROUP": "g", "TOTAL_TIMESTEPS": "128"}
-    env |= {"EXTRA_ARGS": "--num-envs 4 --num-steps 32 --num-minibatches 2 --eval-episodes 0"}
+    env |= {"EXTRA_ARGS": "--num-envs 4 --num-steps 32 --num-minibatches 2", "EVAL_EPISODES": "0"}
     run = tmp_path / "runs" / "g" / "Breakout-v5__ppo_atari_envpool__1"
     run.mkdir(parents=True)
     made = ppo.Args(env_id="Breakout-v5", seed=1, total_timesteps=128, num_envs=4, num_steps=32, num_minibatches=2)
-    made.run_name, made.auto_resume, made.eval_episodes = "g/Breakout-v5__ppo_atari_envpool__1", True, 0
+    made.run_name, made.auto_resume = "g/Breakout-v5__ppo_atari_envpool__1", True
     torch.save({"args": vars(made), "finished": True, "iteration": 1}, run / "checkpoint.pt")
     same = sweep(env | {"DRY_RUN": "1"}, tmp_path)
     assert same.returncode == 0 and "nothing to run: every run in runs/g has finished" in same.stdout

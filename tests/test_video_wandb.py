@@ -1,5 +1,5 @@
-"""Evaluation videos (--capture-video, evaluate.py --video) decoded back, and W&B tracking (--track) read
-back from wandb's offline run files."""
+"""Evaluation videos (evaluate.py --video) decoded back, and W&B tracking (--track, and evaluate.py --run of a tracked
+run) readback from wandb's offline run files."""
 
 import glob
 import importlib.machinery
@@ -87,7 +87,12 @@ def offline_run(wandb_dir):
 def tracked(tmp_path_factory):
     """A P3O run with --capture-video and --track (offline): (cwd, run folder)."""
     cwd = tmp_path_factory.mktemp("tracked")
-    proc = train("p3o", cwd, "--run-name", "v", "--eval-episodes", "2", "--capture-video", "--track")
+    proc = train("p3o", cwd, "--run-name", "v", "--track")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    evaluate = os.path.join(ROOT, "benchmark", "evaluate.py")
+    env = {**os.environ, "WANDB_MODE": "offline", "WANDB_SILENT": "true"}
+    cmd = [sys.executable, evaluate, "--run", "runs/v", "--episodes", "2", "--video"]
+    proc = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return cwd, cwd / "runs" / "v"
 
@@ -108,34 +113,38 @@ def test_each_evaluation_game_is_a_colour_video_of_all_its_frames(tracked):
 
 
 def test_video_changes_nothing_the_agent_sees(tmp_path):
+    from benchmark import evaluate
+
     torch.manual_seed(0)
     agent = ppo.Agent(4)
     torch.manual_seed(1)
-    plain = ppo.evaluate(agent, "Breakout-v5", 2, 100, False, torch.device("cpu"))
+    plain = evaluate.play(agent, "Breakout-v5", 2, 100, False, torch.device("cpu"))
     torch.manual_seed(1)
-    filmed = ppo.evaluate(agent, "Breakout-v5", 2, 100, False, torch.device("cpu"), str(tmp_path / "videos"))
+    filmed = evaluate.play(agent, "Breakout-v5", 2, 100, False, torch.device("cpu"), str(tmp_path / "videos"))
     assert filmed.pop("videos") == [str(tmp_path / "videos" / f"eval-game{i}.mp4") for i in range(2)]
     assert filmed == plain
 
 
 def test_tracked_run_mirrors_tensorboard_in_wandb(tracked):
+    # the training and, after it, evaluate.py --run: two offline runs of one W&B run
     cwd, run_dir = tracked
-    (run,) = offline_run(str(cwd / "wandb"))
-    assert run["id"] == (run_dir / "wandb_id").read_text() and run["name"] == "v"
-    assert run["config"]["env_id"] == "Breakout-v5" and run["config"]["ewma_alpha"] == 0.9
-    points = scalars(run_dir)
+    trained, evaluated = offline_run(str(cwd / "wandb"))
+    assert trained["id"] == evaluated["id"] == (run_dir / "wandb_id").read_text()
+    assert trained["name"] == evaluated["name"] == "v"
+    assert trained["config"]["env_id"] == "Breakout-v5" and trained["config"]["ewma_alpha"] == 0.9
+    points, history = scalars(run_dir), trained["history"] + evaluated["history"]
     for tag in ("charts/episodic_return", "losses/value_loss", "p3o/beta_mean", "eval/episodic_return"):
         logged = [v for _, v in points[tag]]
-        mirrored = [row[tag] for row in run["history"] if tag in row]
+        mirrored = [row[tag] for row in history if tag in row]
         assert logged and np.allclose(mirrored, logged, rtol=1e-6), tag
-    videos = {k: v for row in run["history"] for k, v in row.items() if k.startswith("videos/")}
+    videos = {k: v for row in evaluated["history"] for k, v in row.items() if k.startswith("videos/")}
     assert videos["videos/eval-game0/_type"] == "video-file" and videos["videos/eval-game1/_type"] == "video-file"
     assert videos["videos/eval-game0/size"] == os.path.getsize(run_dir / "videos" / "eval-game0.mp4")
 
 
 def test_a_resumed_tracked_run_continues_the_same_wandb_run(tmp_path):
     cmd = [sys.executable, os.path.join(ROOT, "ppo_atari_envpool.py"), *TINY, "--total-timesteps", "1280"]
-    cmd += ["--run-name", "r", "--auto-resume", "--eval-episodes", "0", "--checkpoint-every", "0", "--track"]
+    cmd += ["--run-name", "r", "--auto-resume", "--checkpoint-every", "0", "--track"]
     env = {**os.environ, "WANDB_MODE": "offline", "WANDB_SILENT": "true"}
     proc = subprocess.Popen(cmd, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     for line in proc.stdout:
@@ -151,7 +160,7 @@ def test_a_resumed_tracked_run_continues_the_same_wandb_run(tmp_path):
     runs = offline_run(str(tmp_path / "wandb"))
     assert len(runs) == 2 and runs[0]["id"] == runs[1]["id"] == first_id
     # a new run in a new folder gets a W&B run of its own
-    other = train("ppo", tmp_path, "--run-name", "other", "--eval-episodes", "0", "--track")
+    other = train("ppo", tmp_path, "--run-name", "other", "--track")
     assert other.returncode == 0, other.stderr[-3000:]
     assert (tmp_path / "runs" / "other" / "wandb_id").read_text() != first_id
 
@@ -171,11 +180,8 @@ def test_evaluate_script_writes_videos(tracked, tmp_path):
 
 
 @pytest.mark.parametrize("module", [ppo, p3o], ids=["ppo", "p3o"])
-def test_video_without_evaluation_and_track_without_wandb_are_refused(module, tmp_path, monkeypatch):
+def test_track_without_wandb_is_refused(module, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    with pytest.raises(SystemExit) as excinfo:
-        module.main(module.Args(capture_video=True, eval_episodes=0))
-    assert excinfo.value.code == "error: --capture-video records the evaluation games, but --eval-episodes is 0."
     find_spec = importlib.util.find_spec
     # without wandb installed, python finds nothing, or, where an offline run left its ./wandb/ folder beside the
     # script, that folder as an empty namespace package (which is not wandb either)
@@ -184,7 +190,7 @@ def test_video_without_evaluation_and_track_without_wandb_are_refused(module, tm
     assert leftover is not None and leftover.origin is None
     # were the check passed, a tiny run would train, tracked by a disabled wandb, and return: the test fails fast
     monkeypatch.setenv("WANDB_MODE", "disabled")
-    tiny = dict(num_envs=4, num_steps=16, num_minibatches=2, update_epochs=1, total_timesteps=64, eval_episodes=0)
+    tiny = dict(num_envs=4, num_steps=16, num_minibatches=2, update_epochs=1, total_timesteps=64)
     for spec in (None, leftover):
         monkeypatch.setattr(
             importlib.util, "find_spec", lambda name, *a, s=spec: s if name == "wandb" else find_spec(name, *a)
@@ -206,7 +212,7 @@ def test_track_without_a_wandb_login_is_one_sentence_before_training(tmp_path):
     assert proc.returncode == 1
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith("error: W&B did not start (") and last.endswith(
-        "); log in with `wandb login`, or set WANDB_MODE=offline to log locally and `wandb sync` later."
+        "); log in with `wandb login`, or set WANDB_MODE=offline."
     )
     assert "Traceback" not in proc.stderr and "iteration 1/" not in proc.stdout
 
