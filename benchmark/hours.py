@@ -147,17 +147,23 @@ def hours(frame: pd.DataFrame, out: str) -> str | None:
     return write(out, "hours", "\n".join(lines) + "\n", csv_rows)
 
 
-def main(args: Args) -> str | None:
+def main(args: Args) -> str:
+    if not args.roots:
+        sys.exit("error: give the folders of runs to read, e.g. `hours.py runs/ --out results/`.")
+    try:
+        re.compile(args.group_regex or "")
+    except re.error as e:
+        sys.exit(f"error: --group-regex is not a regular expression ({e}).")
     if folder_problem(args.out):
         sys.exit(f"error: --out {args.out} cannot be a folder for the tables: {folder_problem(args.out)}.")
     frame, problems = find_runs(args.roots, args.group_regex)
     for problem in problems:
         print(f"skipped: {problem}", file=sys.stderr)
+    if frame[frame.tag == "charts/SPS"].empty:  # nothing to write: no table, and no folder made for it
+        sys.exit(f"error: no training run (per-iteration `charts/SPS` points) under {', '.join(args.roots)}.")
     os.makedirs(args.out, exist_ok=True)
     text = hours(frame, args.out)
-    print(text if text else "no run logged per-iteration `charts/SPS` points; no hours written")
-    if text:
-        print(f"wrote {os.path.join(args.out, 'hours')}.md and .csv")
+    print(f"{text}wrote {os.path.join(args.out, 'hours')}.md and .csv")
     return text
 
 

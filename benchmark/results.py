@@ -87,6 +87,8 @@ class Args:
     in each window [k·W, (k+1)·W) of W env steps, then mean ± s.e. over runs (0: no such table)"""
     group_regex: str | None = None
     """regex with named groups `env` and `algo`, searched in each run folder's name (instead of the name's parts)"""
+    games: tuple[str, ...] = ()
+    """only these env ids (default: every game found)"""
     figures: bool = True
     """write the figures"""
     grid_points: int = 200
@@ -105,11 +107,12 @@ class Args:
 
 
 def logged_identity(acc) -> dict:
-    """env_id and exp_name from the `hyperparameters` text the training scripts log (empty if absent)."""
+    """env_id and exp_name from the `hyperparameters` text the training scripts log (empty if absent). Each row is
+    `|name|value|`, split at its first inner bar: a value may be empty (`--wandb-entity=`)."""
     if "hyperparameters/text_summary" not in acc.Tags().get("tensors", []):
         return {}
     text = acc.Tensors("hyperparameters/text_summary")[0].tensor_proto.string_val[0].decode()
-    table = dict(line.strip("|").split("|", 1) for line in text.splitlines() if line.count("|") >= 3)
+    table = dict(line[1:-1].split("|", 1) for line in text.splitlines() if line.count("|") >= 3)
     return {key: table[key] for key in ("env_id", "exp_name") if key in table}
 
 
@@ -130,7 +133,7 @@ def share_above(histogram, threshold: float) -> float:
 
 def name_groups(name: str, pattern) -> tuple[str, str] | None:
     """(env, algo) from a run folder's name: --group-regex's groups, or `{env_id}__{exp_name}` less the seed and
-    start time that follow (an exp name may hold `__` itself)."""
+    start time that follow (an exp name may hold `__` itself). find_runs prefers what the run logged."""
     if pattern:
         match = pattern.search(name)
         return (match.group("env"), match.group("algo")) if match else None
@@ -169,8 +172,19 @@ def find_runs(roots, group_regex=None, above=None) -> tuple[pd.DataFrame, list[s
         except Exception as e:  # a truncated or foreign file: say which, go on
             problems.append(f"{folder}: unreadable event file ({type(e).__name__}: {e}), skipped")
             continue
+        if not os.path.isfile(
+            os.path.join(folder, "eval.json")
+        ):  # eval.json, written last, says the evaluation is whole
+            points = {tag: rows for tag, rows in points.items() if not tag.startswith("eval/")}
         groups, logged = name_groups(name, pattern), logged_identity(acc)
-        if groups is None and not pattern and len(logged) == 2:  # a --run-name or evaluate.py folder: what it logged
+        identity = f"{logged.get('env_id')}__{logged.get('exp_name')}"
+        # what the run logged, where the folder is named nothing else (a --run-name or evaluate.py folder) or is that
+        # identity with a suffix of another convention (the thesis authors' `{env}__{exp}__{time}_EVALUATE`)
+        if (
+            not pattern
+            and len(logged) == 2
+            and (groups is None or name == identity or name.startswith(identity + "__"))
+        ):
             groups = (logged["env_id"], logged["exp_name"])
         elif groups and not pattern and len(logged) == 2 and groups != (logged["env_id"], logged["exp_name"]):
             # the folder name is what TensorBoard shows and what the user can rename: it decides, loudly
@@ -339,7 +353,8 @@ def last10_average(steps, values):
 
 def interpolate(curves, grid_points):
     """Curves logged at different steps, aligned by linear interpolation onto one common step grid that
-    spans the steps every curve covers (never by index). Returns (grid, [runs x grid] values)."""
+    spans the steps every curve covers (never by index). Returns (grid, [runs x grid] values); where that cuts
+    more than 5% of the longest curve, figure_curves says so in the legend and write_figures on stderr."""
     curves = [(s, v) for s, v in curves if len(s) > 0]
     if not curves:
         return None, None
@@ -362,11 +377,19 @@ def figure_curves(frame, kind, grid_points):
         grid, values = interpolate(series, grid_points)
         if grid is None:
             continue
+        longest = max(s[-1] for s, _ in series if len(s))
+        n = f"n={len(values)}" if longest - grid[-1] <= 0.05 * (longest - grid[0]) else f"n={len(values)}, cut"
         if kind == "return_variance":
-            curves[algo] = (grid, values.var(axis=0), None, len(values))
+            curves[algo] = (grid, values.var(axis=0), None, n)
         else:
             se = values.std(axis=0) / np.sqrt(len(values))
-            curves[algo] = (grid, values.mean(axis=0), se if len(values) > 1 else None, len(values))
+            curves[algo] = (grid, values.mean(axis=0), se if len(values) > 1 else None, n)
+        if n.endswith("cut") and kind == "episodic_return":
+            print(
+                f"warning: {rows.env.iloc[0]} {algo}: its curves end at step {grid[-1]:,.0f}, where its shortest run"
+                f" does; its longest goes on to {longest:,.0f}",
+                file=sys.stderr,
+            )
     return curves
 
 
@@ -381,8 +404,8 @@ def pyplot():
 
 def plot(ax, curves, title, ylabel, fontsize=None) -> None:
     """One game's curves on `ax`: each algorithm's centre line (its run count in the legend) and ± band."""
-    for algo, (grid, centre, band, n) in curves.items():
-        (line,) = ax.plot(grid, centre, label=f"{algo} (n={n})")
+    for algo, (grid, centre, band, n) in curves.items():  # n: the runs, and "cut" where the shortest cut them
+        (line,) = ax.plot(grid, centre, label=f"{algo} ({n})", marker="o" if len(grid) == 1 else None)
         if band is not None:
             ax.fill_between(grid, centre - band, centre + band, color=line.get_color(), alpha=0.25)
     ax.set_xlabel("environment steps")
@@ -720,6 +743,8 @@ def readme_block(frame, statistics, table, tag, last, p3o, ppo, aggregate) -> st
 
 
 def main(args: Args) -> dict:
+    if not args.roots:
+        sys.exit("error: give the folders of runs to read, e.g. `results.py runs/ --out results/`.")
     if args.last < 0 or args.window_steps < 0 or args.grid_points < 2 or args.bootstrap_reps < 1:
         sys.exit(
             "error: --last and --window-steps must be 0 or more, --grid-points at least 2 and --bootstrap-reps"
@@ -735,10 +760,13 @@ def main(args: Args) -> dict:
         sys.exit(f"error: --out {args.out} cannot be a folder for the tables: {folder_problem(args.out)}.")
     readme = readme_markers(args.readme) if args.readme else None
     frame, problems = find_runs(args.roots, args.group_regex, args.above)
+    frame = frame[frame.env.isin(args.games)] if args.games else frame
     for problem in problems:
         print(f"skipped: {problem}", file=sys.stderr)
     if frame.empty:
         sys.exit(f"error: no readable runs under {', '.join(args.roots)}.")
+    if args.above is not None and args.tag in set(find_runs(args.roots, args.group_regex)[0].tag):
+        sys.exit(f"error: --above reads a histogram tag (P3O's `p3o/beta`), but {args.tag} is a scalar tag.")
     os.makedirs(args.out, exist_ok=True)
     label = args.tag if args.above is None else f"{args.tag} share above {args.above:g}"
     statistics = per_run(frame, args.tag, args.last)
@@ -772,9 +800,10 @@ def main(args: Args) -> dict:
         block = readme_block(frame, statistics, table, label, args.last, args.p3o_name, args.ppo_name, aggregate)
         before, rest = readme.split(README_BEGIN)
         after = rest.split(README_END)[1]
-        with open(f"{args.readme}.tmp", "w") as f:  # written whole, then renamed: never half a README
+        path = os.path.realpath(args.readme)  # a symlink's file is written, not the link replaced by a file
+        with open(f"{path}.tmp", "w") as f:  # written whole, then renamed: never half a README
             f.write(f"{before}{README_BEGIN}\n{block}{README_END}{after}")
-        os.replace(f"{args.readme}.tmp", args.readme)
+        os.replace(f"{path}.tmp", path)
         print(f"wrote the results block of {args.readme}")
         result["readme_block"] = block
     if args.figures:

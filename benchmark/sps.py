@@ -135,8 +135,15 @@ def main(args: Args) -> dict:
     if args.iterations < 1 or args.warmup < 1 or args.rounds < 1:
         sys.exit("error: --iterations, --warmup and --rounds must be at least 1.")
     unknown = set(args.scripts) - set(SCRIPTS)
-    if unknown:
-        sys.exit(f"error: unknown script(s) {sorted(unknown)}; choose from {sorted(SCRIPTS)}.")
+    if unknown or not args.scripts:
+        sys.exit(f"error: --scripts must name one or more of {sorted(SCRIPTS)}, got {sorted(args.scripts)}.")
+    # where the results go, checked before minutes of measuring (on a GPU machine, minutes of a lent device)
+    from benchmark.results import folder_problem  # the same check as results.py --out
+
+    out = "folder" if os.path.isdir(args.out) else "file" if os.path.isfile(args.out) else None  # a file: replaced
+    problem = "it is a folder" if out == "folder" else None if out == "file" else folder_problem(args.out)
+    if problem:
+        sys.exit(f"error: --out {args.out} cannot be written: {problem}.")
     settings = {
         "env_id": args.env_id,
         "num_envs": args.num_envs,

@@ -1,6 +1,7 @@
 """benchmark/results.py on event files written here with SummaryWriter, with known values."""
 
 import csv
+import json
 import os
 import re
 
@@ -20,11 +21,19 @@ EVAL = {
 }
 
 
+def evaluated(run, returns):
+    """The run's eval.json, the record that its evaluation is whole (results.py counts eval/ points only beside it)."""
+    os.makedirs(run, exist_ok=True)
+    with open(os.path.join(run, "eval.json"), "w") as f:
+        json.dump({"returns": list(returns)}, f)
+
+
 def write_run(root, env, algo, seed, eval_returns, step_every):
     run = os.path.join(root, f"{env}__{algo}__{seed}__1700000000")
     writer = SummaryWriter(run)
     for game, ret in enumerate(eval_returns):
         writer.add_scalar("eval/episodic_return", ret, game)
+    evaluated(run, eval_returns)
     # a training curve: episodic return = step / 1000 (+ seed), logged every `step_every` steps
     for step in range(step_every, 100_001, step_every):
         writer.add_scalar("charts/episodic_return", step / 1000 + seed, step)
@@ -138,7 +147,7 @@ def test_curves_of_runs_with_different_logging_steps_average_by_step(root):
     breakout = frame[frame.env == "Breakout-v5"]
     curves = results.figure_curves(breakout, "episodic_return", 50)
     grid, mean, se, n = curves[PPO]
-    assert n == 3
+    assert n == "n=3"  # every run reaches the end of the curves: none is cut
     # seeds 1, 2, 3 log step/1000 + seed at every 1000, 2000, 3000 steps: at any common step the mean
     # is step/1000 + 2 and the standard error that of (1, 2, 3); by index they would not line up
     np.testing.assert_allclose(mean, grid / 1000 + 2, rtol=1e-6)
@@ -201,10 +210,12 @@ def test_runs_named_with_run_name_are_grouped_by_their_logged_hyperparameters(tm
         writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n|exp_name|{algo}|\n|seed|1|\n|env_id|{env}|")
         writer.add_scalar("eval/episodic_return", value, 0)
         writer.close()
+        evaluated(tmp_path / "runs" / name, [value])
     # and a run that logged none falls back on its folder name
     writer = SummaryWriter(str(tmp_path / "runs" / f"Qbert-v5__{PPO}__1__1"))
     writer.add_scalar("eval/episodic_return", 7.0, 0)
     writer.close()
+    evaluated(tmp_path / "runs" / f"Qbert-v5__{PPO}__1__1", [7.0])
     result = results.main(results.Args(roots=(str(tmp_path / "runs"),), out=str(tmp_path / "o"), figures=False))
     assert result["table"] == {
         ("Breakout-v5", P3O): (4.0, 0.0, 1),
@@ -220,6 +231,7 @@ def test_a_folder_named_for_another_algorithm_than_it_logged_is_grouped_by_its_n
         writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n|exp_name|{algo}|\n|seed|1|\n|env_id|Breakout-v5|")
         writer.add_scalar("eval/episodic_return", value, 0)
         writer.close()
+        evaluated(tmp_path / "runs" / name, [value])
     result = results.main(results.Args(roots=(str(tmp_path / "runs"),), out=str(tmp_path / "o"), figures=False))
     assert result["table"] == {("Breakout-v5", P3O): (4.0, 0.0, 1), ("Breakout-v5", "p3o-lr1e-3"): (6.0, 0.0, 1)}
     warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning: ")]
@@ -542,6 +554,7 @@ def test_an_exp_name_with_double_underscores_is_not_split_at_them(tmp_path, caps
             writer.add_text("hyperparameters", table)
             writer.add_scalar("eval/episodic_return", value, 0)
             writer.close()
+            evaluated(os.path.join(root, f"Breakout-v5__{exp}__{seed}__1700000000"), [value])
     result = results.main(results.Args(roots=(root,), out=str(tmp_path / "out"), figures=False))
     assert set(result["table"]) == {("Breakout-v5", "my__a"), ("Breakout-v5", "my__b")}
     assert result["table"]["Breakout-v5", "my__a"][:3] == (10.0, 0.0, 2)
@@ -560,3 +573,123 @@ def test_a_truncated_event_file_is_named_and_its_complete_records_used(tmp_path,
     err = capsys.readouterr().err
     assert f"warning: {path}: truncated: its last 19 bytes are an incomplete record" in err
     assert result["table"]["Breakout-v5", P3O][:3] == (7.0, 0.0, 1)  # the complete records are still read
+
+
+def logged_run(folder, env, exp, eval_returns=None, rows=""):
+    """A run folder as the scripts write it: the hyperparameters table (with `rows` more) and eval points."""
+    writer = SummaryWriter(str(folder))
+    writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n|exp_name|{exp}|\n|env_id|{env}|\n|seed|1|{rows}")
+    for game, value in enumerate(eval_returns or []):
+        writer.add_scalar("eval/episodic_return", value, game)
+    writer.close()
+    if eval_returns:
+        evaluated(folder, eval_returns)
+
+
+def test_an_empty_cell_among_the_logged_hyperparameters_is_read(tmp_path, capsys):
+    """`--wandb-entity=` (an unset variable in a sweep) logs the row `|wandb_entity||`: the folder is still read and
+    grouped by what it logged, with the others."""
+    logged_run(tmp_path / "runs" / "mine", "Breakout-v5", P3O, [3.0], rows="\n|wandb_entity||\n|run_name||")
+    logged_run(tmp_path / "runs" / "other", "Breakout-v5", P3O, [5.0])
+    result = results.main(results.Args(roots=(str(tmp_path / "runs"),), out=str(tmp_path / "o"), figures=False))
+    assert result["table"] == {("Breakout-v5", P3O): (4.0, pytest.approx(1 / np.sqrt(2)), 2)}
+    assert "skipped" not in capsys.readouterr().err
+
+
+def test_runs_named_by_another_convention_group_by_what_they_logged(tmp_path, capsys):
+    """The thesis authors' evaluation runs are `{env}__{exp}__{time}_EVALUATE`: the logged identity with a suffix,
+    one group for all of them and no warning; a folder that names another algorithm still warns."""
+    for seed, value in ((1, 10.0), (2, 20.0)):
+        logged_run(tmp_path / "runs" / f"Breakout-v5__p3o__170000000{seed}_EVALUATE", "Breakout-v5", "p3o", [value])
+    result = results.main(results.Args(roots=(str(tmp_path / "runs"),), out=str(tmp_path / "o"), figures=False))
+    assert result["table"] == {("Breakout-v5", "p3o"): (15.0, pytest.approx(5 / np.sqrt(2)), 2)}
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_eval_points_count_only_beside_their_eval_json(tmp_path):
+    """eval.json is written last, once an evaluation is whole: points of one that failed before it are not a run's
+    evaluation, so the table leaves them out rather than average two evaluations or a half one."""
+    logged_run(tmp_path / "runs" / "whole", "Breakout-v5", P3O, [4.0])
+    logged_run(tmp_path / "runs" / "half", "Breakout-v5", P3O)
+    writer = SummaryWriter(str(tmp_path / "runs" / "half"), filename_suffix=".eval")
+    writer.add_scalar("eval/episodic_return", 100.0, 0)
+    writer.close()
+    result = results.main(results.Args(roots=(str(tmp_path / "runs"),), out=str(tmp_path / "o"), figures=False))
+    assert result["table"] == {("Breakout-v5", P3O): (4.0, 0.0, 1)}
+
+
+def test_a_readme_given_as_a_symlink_has_its_file_written(root, tmp_path):
+    readme = tmp_path / "docs" / "README.md"
+    readme.parent.mkdir()
+    readme.write_text(f"# x\n{results.README_BEGIN}\nold\n{results.README_END}\ntail\n")
+    (tmp_path / "README.md").symlink_to(readme)
+    args = results.Args(roots=(root,), out=str(tmp_path / "o"), figures=False, readme=str(tmp_path / "README.md"))
+    results.main(args)
+    assert (tmp_path / "README.md").is_symlink() and "old" not in readme.read_text()
+    assert readme.read_text().startswith(f"# x\n{results.README_BEGIN}\n") and readme.read_text().endswith("tail\n")
+
+
+@pytest.mark.parametrize(
+    "flags,sentence",
+    [
+        ([], "error: give the folders of runs to read"),
+        (["{root}", "--tag", "charts/episodic_return", "--above", "0.5"], "error: --above reads a histogram tag"),
+    ],
+)
+def test_no_folder_and_above_on_a_scalar_tag_are_one_sentence(flags, sentence, root, tmp_path):
+    import subprocess
+    import sys
+
+    script = os.path.join(os.path.dirname(results.__file__), "results.py")
+    flags = [f.format(root=root) for f in flags]
+    proc = subprocess.run(
+        [sys.executable, script, *flags, "--out", str(tmp_path / "o")], capture_output=True, text=True
+    )
+    assert proc.returncode == 1 and proc.stderr.splitlines()[-1].startswith(sentence), proc.stderr
+    assert "Traceback" not in proc.stderr and not (tmp_path / "o").exists()
+
+
+def test_a_run_much_shorter_than_the_others_is_said_where_it_cuts_the_curves(tmp_path, capsys):
+    """Curves of a group are drawn over the steps all its runs cover: one short run among long ones cuts them, and
+    the legend and a warning say so; a curve of a single common step is a marker, not an empty line."""
+    root = tmp_path / "runs"
+    for seed, last in ((1, 100_000), (2, 100_000), (3, 20_000)):
+        writer = SummaryWriter(str(root / f"Breakout-v5__{PPO}__{seed}"))
+        for step in range(1000, last + 1, 1000):
+            writer.add_scalar("charts/episodic_return", step / 1000, step)
+        writer.close()
+    frame, _ = results.find_runs((str(root),))
+    grid, _, _, n = results.figure_curves(frame, "episodic_return", 50)[PPO]
+    assert n == "n=3, cut" and grid[-1] == 20_000
+    assert "Breakout-v5 ppo_atari_envpool: its curves end at step 20,000" in capsys.readouterr().err
+    single = SummaryWriter(str(root / f"Breakout-v5__{PPO}__4"))
+    single.add_scalar("charts/episodic_return", 1.0, 1000)
+    single.close()
+    frame, _ = results.find_runs((str(root),))
+    grid, centre, _, n = results.figure_curves(frame, "episodic_return", 50)[PPO]
+    assert len(grid) == 1 and n == "n=4, cut"
+    written = results.write_figures(frame, str(tmp_path), 50)
+    assert os.path.getsize(written[0]) > 0
+
+
+@pytest.mark.parametrize(
+    "flags,sentence",
+    [
+        ([], "error: give the folders of runs to read"),
+        (["{missing}"], "error: no training run (per-iteration `charts/SPS` points) under"),
+        (["{empty}"], "error: no training run (per-iteration `charts/SPS` points) under"),
+        (["{empty}", "--group-regex", "(?P<env>"], "error: --group-regex is not a regular expression"),
+    ],
+)
+def test_hours_refuses_what_it_cannot_count_in_one_sentence_and_makes_no_folder(flags, sentence, tmp_path):
+    import subprocess
+    import sys
+
+    (tmp_path / "empty").mkdir()
+    flags = [f.format(missing=tmp_path / "missing", empty=tmp_path / "empty") for f in flags]
+    script = os.path.join(os.path.dirname(results.__file__), "hours.py")
+    proc = subprocess.run(
+        [sys.executable, script, *flags, "--out", str(tmp_path / "o")], capture_output=True, text=True
+    )
+    assert proc.returncode == 1 and proc.stderr.splitlines()[-1].startswith(sentence), proc.stderr
+    assert "Traceback" not in proc.stderr and not (tmp_path / "o").exists()

@@ -37,10 +37,17 @@ def test_sps_measures_both_scripts_over_alternating_rounds(tmp_path):
 
 
 def test_sps_refuses_bad_settings(tmp_path):
+    (tmp_path / "blocker").write_text("a file where a folder would go")
     for bad, message in [
         (["--warmup", "0"], "error: --iterations, --warmup and --rounds must be at least 1."),
         (["--rounds", "0"], "error: --iterations, --warmup and --rounds must be at least 1."),
-        (["--scripts", "a2c"], "error: unknown script(s) ['a2c']; choose from ['p3o', 'ppo']."),
+        (["--scripts", "a2c"], "error: --scripts must name one or more of ['p3o', 'ppo'], got ['a2c']."),
+        (["--scripts"], "error: --scripts must name one or more of ['p3o', 'ppo'], got []."),
+        (
+            ["--out", "blocker/sps.json"],
+            f"error: --out blocker/sps.json cannot be written: {tmp_path}/blocker is a file, not a folder.",
+        ),
+        (["--out", "."], "error: --out . cannot be written: it is a folder."),
         (
             ["--num-envs", "3", "--num-minibatches", "5"],
             "error: the batch (--num-envs * --num-steps = 384) does not divide into 5 minibatches.",
