@@ -555,6 +555,15 @@ def across_games(statistics, tag, last, p3o, ppo, reps, seed, figure_path=None) 
         lines.append(f"| {algo} | {n} | " + " | ".join(cells) + " |")
     poi_interval = interval(float(np.squeeze(poi_ci[pair][0])), float(np.squeeze(poi_ci[pair][1])))
     lines += ["", f"P({p3o} > {ppo}) = {float(np.squeeze(poi[pair])):.3f}, 95% CI {poi_interval}"]
+    tests = improvement_tests(scores[p3o], scores[ppo])
+    lines += [
+        "",
+        f"Two tests of P({p3o} > {ppo}) = 0.5, for two questions. Is there a difference within these {len(games)}"
+        f" games? The stratified exact permutation test (runs relabelled within each game; every game's splits, their"
+        f" averages combined exactly): p = {tests['stratified']:.3f}. Is {p3o} better across games, the games as the"
+        f" units? The exact sign-flip test of the games' P - 0.5: p = {tests['sign_flip']:.3f} (Wilcoxon's signed-rank"
+        f" test: p = {tests['wilcoxon']:.3f}). Two-sided p.",
+    ]
     shares_text, gap, shares = mean_gap_shares(scores, games, p3o, ppo)
     lines += ["", shares_text]
     if figure_path:
@@ -583,8 +592,39 @@ def across_games(statistics, tag, last, p3o, ppo, reps, seed, figure_path=None) 
         },
         "mean_gap": (gap, shares),
         "improvement": tuple(float(np.squeeze(x)) for x in (poi[pair], poi_ci[pair][0], poi_ci[pair][1])),
+        "improvement_tests": tests,
     }
     return "\n".join(lines) + "\n", sorted(set(notes)), numbers
+
+
+def improvement_tests(x, y) -> dict:
+    """Two-sided p of P(X > Y) = 0.5, the mean over games of each game's P(X > Y) + P(X = Y) / 2 over its run pairs
+    (rliable's probability of improvement), from x and y [runs x games]. `stratified`: the exact permutation test with
+    the runs relabelled within each game (each game's every split; the games' statistics are independent under it,
+    so the average's distribution is their exact convolution) - no difference within these games. `sign_flip`: the
+    exact test with the games as the units (each game's P - 0.5 flipped in sign, every pattern), and `wilcoxon` its
+    rank test - better across games."""
+    from itertools import combinations, product
+
+    def pairs(a, b):  # 2 * (the pairs with a > b, plus half the ties), an integer
+        return int(2 * (a[:, None] > b[None, :]).sum() + (a[:, None] == b[None, :]).sum())
+
+    games, m, k = x.shape[1], len(x), len(y)
+    observed = sum(pairs(x[:, g], y[:, g]) for g in range(games))
+    distribution = np.ones(1)  # the sum over no games: 0
+    for g in range(games):  # each game's exact distribution over its splits, convolved into the sum's
+        pooled = np.concatenate([x[:, g], y[:, g]])
+        counts = np.zeros(2 * m * k + 1)
+        for chosen in combinations(range(m + k), m):
+            rest = [i for i in range(m + k) if i not in chosen]
+            counts[pairs(pooled[list(chosen)], pooled[rest])] += 1
+        distribution = np.convolve(distribution, counts / counts.sum())
+    centre = games * m * k  # the sum when P = 0.5
+    stratified = distribution[np.abs(np.arange(len(distribution)) - centre) >= abs(observed - centre) - 1e-9].sum()
+    effects = np.array([pairs(x[:, g], y[:, g]) / (2 * m * k) - 0.5 for g in range(games)])
+    flips = [abs((effects * np.array(s)).mean()) >= abs(effects.mean()) - 1e-12 for s in product([1, -1], repeat=games)]
+    wilcoxon = stats.wilcoxon(effects).pvalue if np.any(effects) else 1.0
+    return {"stratified": float(min(stratified, 1.0)), "sign_flip": float(np.mean(flips)), "wilcoxon": float(wilcoxon)}
 
 
 def exact_permutation_p(a, b) -> float:
@@ -730,7 +770,10 @@ def readme_block(frame, statistics, table, tag, last, p3o, ppo, aggregate) -> st
             f"**Across the {len(aggregate['games'])} games** ({aggregate['runs']} runs each, human-normalised, 95%"
             f" stratified-bootstrap CIs over {aggregate['reps']:,} replications, rliable), P3O against PPO: "
             + "; ".join(parts)
-            + f"; P(P3O > PPO) = {poi:.3f} [{lo:.3f}, {hi:.3f}].",
+            + f"; P(P3O > PPO) = {poi:.3f} [{lo:.3f}, {hi:.3f}]: a difference within these games, p ="
+            f" {aggregate['improvement_tests']['stratified']:.3f} (stratified exact permutation test); P3O better"
+            f" across games, p = {aggregate['improvement_tests']['sign_flip']:.3f} (exact sign-flip test, games as"
+            " the units).",
         ]
         gap, shares = aggregate["mean_gap"]
         if gap != 0:

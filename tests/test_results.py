@@ -693,3 +693,30 @@ def test_hours_refuses_what_it_cannot_count_in_one_sentence_and_makes_no_folder(
     )
     assert proc.returncode == 1 and proc.stderr.splitlines()[-1].startswith(sentence), proc.stderr
     assert "Traceback" not in proc.stderr and not (tmp_path / "o").exists()
+
+
+def test_the_two_tests_of_the_probability_of_improvement_by_brute_force():
+    """improvement_tests against an enumeration written out here: every joint relabelling of the runs within each of
+    two games (C(6,3)^2 = 400) for the stratified test, every sign pattern of the games' effects for the other."""
+    from itertools import combinations, product
+
+    x = np.array([[3.0, 10.0], [5.0, 10.0], [9.0, 12.0]])  # [runs x games], ties across the groups included
+    y = np.array([[1.0, 10.0], [4.0, 8.0], [5.0, 7.0]])
+
+    def poi(a, b):
+        return np.mean([(u > v) + 0.5 * (u == v) for u in a for v in b])
+
+    observed = np.mean([poi(x[:, g], y[:, g]) for g in range(2)])
+    averages = []
+    for split0, split1 in product(combinations(range(6), 3), repeat=2):
+        per_game = []
+        for g, chosen in enumerate((split0, split1)):
+            pooled = np.concatenate([x[:, g], y[:, g]])
+            per_game.append(poi(pooled[list(chosen)], np.delete(pooled, list(chosen))))
+        averages.append(np.mean(per_game))
+    stratified = np.mean([abs(a - 0.5) >= abs(observed - 0.5) - 1e-12 for a in averages])
+    effects = np.array([poi(x[:, g], y[:, g]) - 0.5 for g in range(2)])
+    sign_flip = np.mean([abs((effects * s).mean()) >= abs(effects.mean()) - 1e-12 for s in product([1, -1], repeat=2)])
+    tests = results.improvement_tests(x, y)
+    assert tests["stratified"] == pytest.approx(stratified) and 0 < stratified < 1
+    assert tests["sign_flip"] == pytest.approx(sign_flip)
