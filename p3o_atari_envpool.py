@@ -407,7 +407,7 @@ def main(args: Args, cli: list[str] | None = None, run: contextlib.ExitStack | N
         writer.add_scalar("losses/clipfrac", torch.stack(clipfracs).mean().item(), global_step)
         writer.add_scalar("losses/explained_variance", explained_variance(b_values, b_returns, b_valid), global_step)
         writer.add_scalar("p3o/beta_mean", betas.mean().item(), global_step)
-        writer.add_scalar("p3o/beta_std", betas.std().item(), global_step)
+        writer.add_scalar("p3o/beta_std", betas.std(correction=int(betas.numel() > 1)).item(), global_step)  # one β: 0
         writer.add_scalar("p3o/state_importance_mean", state_importances.mean().item(), global_step)
         sps = int((global_step - start_global_step) / (time.time() - start_time))
         writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)

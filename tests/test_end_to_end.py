@@ -491,3 +491,20 @@ def test_evaluate_run_refuses_an_unfinished_run_and_flags_for_other_games(runs, 
     proc = evaluate_cli("--run", str(run_dir), "--seed", "7")
     assert proc.returncode == 1 and proc.stderr.startswith("error: --run plays the run's own games")
     assert not (run_dir / "eval.json").exists()
+
+
+def test_p3o_with_one_environment_and_one_step_logs_finite_statistics_without_warnings(tmp_path):
+    """The smallest run there is: one β a rollout, whose standard deviation is 0 (not a NaN and a torch warning)."""
+    one = ["--env-id", "Breakout-v5", "--num-envs", "1", "--num-steps", "1", "--num-minibatches", "1"]
+    one += ["--update-epochs", "1", "--total-timesteps", "3", "--no-cuda", "--run-name", "one"]
+    proc = subprocess.run(
+        [sys.executable, os.path.join(ROOT, "p3o_atari_envpool.py"), *one],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0 and "Warning" not in proc.stderr, proc.stderr
+    logged = scalars(tmp_path / "runs" / "one")
+    assert [v for _, v in logged["p3o/beta_std"]] == [0.0, 0.0, 0.0]
+    assert all(math.isfinite(v) for tag in P3O_TAGS for _, v in logged[tag])

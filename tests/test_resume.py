@@ -14,6 +14,7 @@ import signal
 import socket
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -752,3 +753,24 @@ def test_an_unreadable_checkpoint_is_named_with_the_flag_that_was_given(tmp_path
         "error: --auto-resume runs/bad/checkpoint.pt is not a checkpoint these scripts can read (damaged, or another"
         " kind of file).\n"
     )
+
+
+def test_ctrl_c_in_a_filmed_evaluation_into_a_new_folder_leaves_nothing_and_no_noise(trained, tmp_path):
+    """Ctrl-C in a terminal signals the whole foreground group, evaluate.py and its ffmpeg encoders alike: the
+    evaluation stops with 128 + 2 and one line, no traceback or encoder output, and no hidden half-written folder."""
+    cmd = [sys.executable, EVALUATE, "--model-path", str(trained[1] / "checkpoint.pt"), "--episodes", "8"]
+    cmd += ["--run-dir", str(tmp_path / "clip"), "--video", "--no-cuda"]
+    proc = subprocess.Popen(
+        cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+    lines = []
+    for line in proc.stdout:
+        lines.append(line)
+        if line.startswith("device: "):
+            time.sleep(2)  # the games and their encoders under way
+            os.killpg(proc.pid, signal.SIGINT)
+            break
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 128 + signal.SIGINT, (lines, out, err)
+    assert err == "" and "stopped by signal 2: nothing was written" in out, err
+    assert os.listdir(tmp_path) == []
