@@ -124,7 +124,7 @@ PY
                 echo "$game seed $seed: done (its outputs are in $out/runs/)"
                 continue
             fi
-            echo "$game seed $seed: $algos -> runs/$group/ (logs in runs/$group/logs/)"
+            echo "$game seed $seed: ${algos// / and } -> runs/$group/ (logs in runs/$group/logs/)"
             if ! GAMES=$game SEEDS=$seed "${sweep[@]}"; then
                 echo "error: a run of $game seed $seed failed; see runs/$group/logs/ (calling this again resumes it)." >&2
                 exit 1

@@ -158,7 +158,8 @@ for command in sys.argv[3:]:
         if name in given and given[name] != getattr(args, name):
             flag = "--" + name.replace("_", "-")
             sys.exit(f"error: EXTRA_ARGS sets {flag} ({getattr(args, name)}), which the sweep sets for {knob}.")
-    args = script.Args(**{n: getattr(args, n) for n in script.INIT} | {"resume": None})  # now checked, as a run's
+    made = {"resume": None} | ({"exp_name": "p3o_" + words[at].replace("-", "_")} if ablation else {})  # as the tool
+    args = script.Args(**{n: getattr(args, n) for n in script.INIT} | made)  # now checked, as a run's
     path = os.path.join("runs", args.run_name, "checkpoint.pt")
     if os.path.isfile(path):
         try:

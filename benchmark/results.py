@@ -172,9 +172,8 @@ def find_runs(roots, group_regex=None, above=None) -> tuple[pd.DataFrame, list[s
         except Exception as e:  # a truncated or foreign file: say which, go on
             problems.append(f"{folder}: unreadable event file ({type(e).__name__}: {e}), skipped")
             continue
-        if not os.path.isfile(
-            os.path.join(folder, "eval.json")
-        ):  # eval.json, written last, says the evaluation is whole
+        # eval.json, written last, says the evaluation is whole: eval/ points without it are not counted
+        if not os.path.isfile(os.path.join(folder, "eval.json")):
             points = {tag: rows for tag, rows in points.items() if not tag.startswith("eval/")}
         groups, logged = name_groups(name, pattern), logged_identity(acc)
         identity = f"{logged.get('env_id')}__{logged.get('exp_name')}"

@@ -172,9 +172,22 @@ def main(args: Args) -> dict:
         results[name] = {key: statistics.median(m[key] for m in measured) for key in numbers}
         results[name]["rounds"] = measured
     device = rounds[args.scripts[0]][0]["device"]
-    print(f"device: {device}")
-
     raw = results["raw_env"]["rollout_sps"]
+    ratios = {}
+    for name in args.scripts:
+        ratios[f"{name}_rollout/raw_env"] = results[name]["rollout_sps"] / raw
+        ratios[f"{name}_iteration/raw_env"] = results[name]["iteration_sps"] / raw
+    if {"ppo", "p3o"} <= set(args.scripts):
+        ratios["p3o/ppo_iteration"] = results["p3o"]["iteration_sps"] / results["ppo"]["iteration_sps"]
+        ratios["p3o/ppo_rollout"] = results["p3o"]["rollout_sps"] / results["ppo"]["rollout_sps"]
+        ratios["p3o/ppo_update"] = results["p3o"]["update_sps"] / results["ppo"]["update_sps"]
+    report = {"settings": asdict(args), "device": device, "torch": torch.__version__, "results": results}
+    report |= {"ratios": ratios, "unix_time": int(time.time())}
+    # the measurements are written before anything is printed: a reader gone (`| tee` ended by Ctrl-C) loses nothing
+    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
+    with open(args.out, "w") as f:
+        json.dump(report, f, indent=2)
+    print(f"device: {device}")
     print("\n| what | iteration steps/s | rollout steps/s | update steps/s | peak RSS MB |")
     print("|---|---|---|---|---|")
     print(f"| raw envpool, random actions | | {raw:,.0f} | | {results['raw_env']['peak_rss_mb']:,.0f} |")
@@ -184,29 +197,9 @@ def main(args: Args) -> dict:
             f"| {SCRIPTS[name]} | {r['iteration_sps']:,.0f} | {r['rollout_sps']:,.0f} | "
             f"{r['update_sps']:,.0f} | {r['peak_rss_mb']:,.0f} |"
         )
-    ratios = {}
-    for name in args.scripts:
-        ratios[f"{name}_rollout/raw_env"] = results[name]["rollout_sps"] / raw
-        ratios[f"{name}_iteration/raw_env"] = results[name]["iteration_sps"] / raw
-    if {"ppo", "p3o"} <= set(args.scripts):
-        ratios["p3o/ppo_iteration"] = results["p3o"]["iteration_sps"] / results["ppo"]["iteration_sps"]
-        ratios["p3o/ppo_rollout"] = results["p3o"]["rollout_sps"] / results["ppo"]["rollout_sps"]
-        ratios["p3o/ppo_update"] = results["p3o"]["update_sps"] / results["ppo"]["update_sps"]
     print()
     for key, value in ratios.items():
         print(f"{key}: {value:.3f}")
-
-    report = {
-        "settings": asdict(args),
-        "device": device,
-        "torch": torch.__version__,
-        "results": results,
-        "ratios": ratios,
-        "unix_time": int(time.time()),
-    }
-    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
-    with open(args.out, "w") as f:
-        json.dump(report, f, indent=2)
     print(f"\nwrote {args.out}")
     return report
 

@@ -133,7 +133,7 @@ def test_a_second_call_skips_finished_pairs_and_remakes_the_tables(checked):
 @pytest.mark.parametrize(
     "knobs,sentence",
     [
-        ({"MODE": "atari"}, "error: MODE must be thesis or cleanrl, got 'atari'."),
+        ({"MODE": "atari"}, "error: MODE must be thesis, cleanrl or ablation, got 'atari'."),
         ({"TOTAL_TIMESTEPS": "1e6"}, "error: TOTAL_TIMESTEPS must be a positive whole number, got '1e6'."),
         ({"SEEDS": "1 two"}, "error: SEEDS must be whole numbers without leading zeros, got 'two'."),
         ({"SEEDS": "1 01"}, "error: SEEDS must be whole numbers without leading zeros, got '01'."),
