@@ -232,13 +232,14 @@ def test_a_failure_before_training_lets_the_run_folder_go(algo, tmp_path, monkey
         raise RuntimeError("no emulator today")
 
     monkeypatch.setattr(module, "make_env", failing_make_env)
+    before = signal.getsignal(signal.SIGINT)  # Python's default_int_handler; SIG_IGN in a pytest-xdist worker
     with pytest.raises(RuntimeError, match="no emulator today"):
         module.main(args_for(module, run_name="r"))
     assert open(tmp_path / "runs" / "r" / ".lock").read() == f"process {os.getpid()} on {socket.gethostname()}"
     with open(tmp_path / "runs" / "r" / ".lock") as lock:  # raises BlockingIOError if the failed run still held it
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    # and its signal handlers are gone with it: SIGINT is Python's KeyboardInterrupt again
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    # and its signal handlers are gone with it: SIGINT's is what it was before the run
+    assert signal.getsignal(signal.SIGINT) == before
 
 
 @pytest.mark.parametrize("damage", ["truncated", "garbage", "empty"])
@@ -711,13 +712,14 @@ def test_a_signal_while_the_last_checkpoint_is_written_is_one_sentence_and_128_p
 
     monkeypatch.setattr(ppo, "save", signalled_while_saving)
     monkeypatch.chdir(tmp_path)
+    before = signal.getsignal(signal.SIGINT)  # Python's default_int_handler; SIG_IGN in a pytest-xdist worker
     with pytest.raises(SystemExit) as excinfo:
         ppo.main(args_for(ppo, run_name="last", cuda=False))
     assert excinfo.value.code == 128 + signal.SIGINT
     assert not (tmp_path / "runs" / "last" / "checkpoint.pt.tmp").exists()
     saved = torch.load(tmp_path / "runs" / "last" / "checkpoint.pt", weights_only=True)
     assert saved["iteration"] == ITERATIONS and not saved["finished"]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler went with the run
+    assert signal.getsignal(signal.SIGINT) == before  # the run's handler went with it
     monkeypatch.undo()
     proc = run("ppo", tmp_path, "--resume", "runs/last")
     assert proc.returncode == 0 and torch.load(tmp_path / "runs" / "last" / "checkpoint.pt")["finished"]
