@@ -204,7 +204,7 @@ def main(args: Args) -> dict | None:
         seed = args.seed
     script = load_script("ppo" if saved is None else saved["algorithm"])
     say = script.say
-    env_id = args.env_id or saved["args"]["env_id"]
+    env_id = saved["args"]["env_id"] if args.env_id is None else args.env_id
     script.Args(env_id=env_id)  # its checks refuse a game that is not envpool Atari
     if not 0 <= seed <= 2**31 - args.episodes:
         sys.exit(

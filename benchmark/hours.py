@@ -151,7 +151,8 @@ def main(args: Args) -> str:
     if not args.roots:
         sys.exit("error: give the folders of runs to read, e.g. `hours.py runs/ --out results/`.")
     try:
-        re.compile(args.group_regex or "")
+        if args.group_regex and not {"env", "algo"} <= set(re.compile(args.group_regex).groupindex):
+            sys.exit("error: --group-regex needs the named groups (?P<env>...) and (?P<algo>...).")
     except re.error as e:
         sys.exit(f"error: --group-regex is not a regular expression ({e}).")
     if folder_problem(args.out):

@@ -681,6 +681,10 @@ def compare(a, b) -> tuple[float, float, float, float, float]:
 def folder_problem(path: str) -> str | None:
     """Why a folder could not be made (or written) at `path`, or None: checked before any work, so that a bad
     output folder is one sentence up front, not a traceback after the work (benchmark/evaluate.py uses it too)."""
+    if not path.strip():  # an unset variable in a script: `--out ""` would be the current folder, silently
+        return "an empty name is no folder"
+    if any(len(part.encode()) > 255 for part in path.split(os.sep)):  # the file systems' limit on one name
+        return "a name in it is longer than 255 bytes"
     probe = os.path.abspath(path)
     while not os.path.exists(probe):  # the nearest part of the path that exists must be a writable folder
         probe = os.path.dirname(probe)
@@ -787,11 +791,18 @@ def readme_block(frame, statistics, table, tag, last, p3o, ppo, aggregate) -> st
 def main(args: Args) -> dict:
     if not args.roots:
         sys.exit("error: give the folders of runs to read, e.g. `results.py runs/ --out results/`.")
-    if args.last < 0 or args.window_steps < 0 or args.grid_points < 2 or args.bootstrap_reps < 1:
+    if (
+        args.last < 0
+        or args.window_steps < 0
+        or not 2 <= args.grid_points <= 100_000
+        or not 1 <= args.bootstrap_reps <= 10**6
+    ):
         sys.exit(
-            "error: --last and --window-steps must be 0 or more, --grid-points at least 2 and --bootstrap-reps"
-            " at least 1."
+            "error: --last and --window-steps must be 0 or more, --grid-points in [2, 100000] and --bootstrap-reps in"
+            " [1, 1000000]."
         )
+    if not 0 <= args.seed < 2**32:
+        sys.exit(f"error: --seed must lie in [0, 2^32 - 1] (numpy's seeds), got {args.seed}.")
     if args.group_regex:
         try:
             if not {"env", "algo"} <= set(re.compile(args.group_regex).groupindex):
@@ -800,6 +811,8 @@ def main(args: Args) -> dict:
             sys.exit(f"error: --group-regex is not a regular expression ({e}).")
     if folder_problem(args.out):
         sys.exit(f"error: --out {args.out} cannot be a folder for the tables: {folder_problem(args.out)}.")
+    if not args.table_name.strip() or "/" in args.table_name or len(args.table_name.encode()) > 200:
+        sys.exit(f"error: --table-name {args.table_name!r} must be a file name (not empty, no '/', 200 bytes at most).")
     readme = readme_markers(args.readme) if args.readme else None
     frame, problems = find_runs(args.roots, args.group_regex, args.above)
     frame = frame[frame.env.isin(args.games)] if args.games else frame
@@ -807,6 +820,11 @@ def main(args: Args) -> dict:
         print(f"skipped: {problem}", file=sys.stderr)
     if frame.empty:
         sys.exit(f"error: no readable runs under {', '.join(args.roots)}.")
+    if args.tag not in set(frame.tag):  # a typo or an empty name: nothing to summarise, said before anything is written
+        logged = ", ".join(sorted(set(frame.tag))[:8])
+        sys.exit(
+            f"error: --tag {args.tag!r}: no run under {', '.join(args.roots)} logged it (they logged {logged}, ...)."
+        )
     if args.above is not None and args.tag in set(find_runs(args.roots, args.group_regex)[0].tag):
         sys.exit(f"error: --above reads a histogram tag (P3O's `p3o/beta`), but {args.tag} is a scalar tag.")
     os.makedirs(args.out, exist_ok=True)
