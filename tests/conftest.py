@@ -35,7 +35,7 @@ SLOWEST_FIRST = (
 
 # the quick tier, `uv run pytest -m "not slow"`: the maths and the refusals of bad input, in-process (their tests
 # that start a script are marked slow one by one); every test of the other files trains or starts programs
-QUICK_FILES = ("test_maths.py", "test_bad_input.py", "test_command_line.py")
+QUICK_FILES = ("test_maths.py", "test_bad_input.py", "test_command_line.py", "test_command_line_tools.py")
 
 
 def pytest_ignore_collect(collection_path, config):

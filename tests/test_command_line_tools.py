@@ -9,6 +9,8 @@ import tempfile
 import numpy as np
 import pytest
 import tyro
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from torch.utils.tensorboard import SummaryWriter
 
 from benchmark import evaluate, hours, results
@@ -24,7 +26,7 @@ def edges(args_type, skip=()):
     for name, field in args_type.__dataclass_fields__.items():
         if name in skip:
             continue
-        flag, default = "--" + name.replace("_", "-"), field.default
+        flag = "--" + name.replace("_", "-")
         kind = field.type if isinstance(field.type, str) else getattr(field.type, "__name__", str(field.type))
         if "bool" in str(kind):
             words[name] = [[flag], [f"--no-{flag[2:]}"]]
@@ -36,7 +38,6 @@ def edges(args_type, skip=()):
             words[name] = [[flag], [flag, "Breakout-v5", "Breakout-v5"], [flag, *NAMES[:4]]]
         else:
             words[name] = [[f"{flag}={v}"] for v in NAMES]
-        assert default is not None or True
     return words
 
 
@@ -77,8 +78,9 @@ def outcome(main, argv, args_type, work, monkeypatch, outputs):
     assert outputs(work), (" ".join(argv), os.listdir(work))
 
 
-@pytest.mark.parametrize("tool", ["results", "hours"])
-def test_results_and_hours_at_every_edge_are_one_sentence_or_their_tables(tool, tiny_runs, tmp_path, monkeypatch):
+def tool_call(tool, tiny_runs):
+    """results.py or hours.py: its module, a small valid call writing into `o`, its flags' edges, and its check that
+    the call wrote its tables."""
     if tool == "results":
         base = [str(tiny_runs), "--out", "o", "--no-figures", "--bootstrap-reps", "10"]
         module, skip = results, ("roots", "figures", "readme")
@@ -92,7 +94,13 @@ def test_results_and_hours_at_every_edge_are_one_sentence_or_their_tables(tool, 
         def outputs(work):
             return os.path.isfile(os.path.join(work, "o", "hours.md"))
 
-    for name, values in edges(module.Args, skip).items():
+    return module, base, edges(module.Args, skip), outputs
+
+
+@pytest.mark.parametrize("tool", ["results", "hours"])
+def test_results_and_hours_at_every_edge_are_one_sentence_or_their_tables(tool, tiny_runs, tmp_path, monkeypatch):
+    module, base, words, outputs = tool_call(tool, tiny_runs)
+    for name, values in words.items():
         for words in values:
             if name == "out":  # the output folder itself at its edges
                 argv = [str(tiny_runs), *words] + base[3:]
@@ -102,6 +110,19 @@ def test_results_and_hours_at_every_edge_are_one_sentence_or_their_tables(tool, 
             outcome(module.main, argv, module.Args, tempfile.mkdtemp(dir=tmp_path), monkeypatch, outputs_here)
 
 
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_results_flags_at_their_edges_together(data, tiny_runs, tmp_path, monkeypatch):
+    """Two to four of results.py's flags at edge values at once (hypothesis): still one sentence, or the tables
+    (hours.py has one flag besides --out, which the test above takes at each edge)."""
+    module, base, words, outputs = tool_call("results", tiny_runs)
+    words.pop("out")  # the output folder's edges change what `outputs` looks for: the test above covers them
+    chosen = data.draw(st.lists(st.sampled_from(sorted(words)), min_size=2, max_size=4, unique=True))
+    argv = base + [word for name in chosen for word in data.draw(st.sampled_from(words[name]), label=name)]
+    outcome(module.main, argv, module.Args, tempfile.mkdtemp(dir=tmp_path), monkeypatch, outputs)
+
+
+@pytest.mark.slow  # plays games (the others of this file are in the quick tier: tests/conftest.py)
 def test_evaluate_at_every_edge_is_one_sentence_or_an_evaluation(tmp_path, monkeypatch):
     """evaluate.py's flags at their edges on top of a one-game random-policy evaluation into a new folder."""
     base = ["--random", "--env-id", "Breakout-v5", "--episodes", "1", "--no-cuda", "--run-dir", "e"]
