@@ -721,3 +721,20 @@ def test_the_two_tests_of_the_probability_of_improvement_by_brute_force():
     tests = comparison.improvement_tests(x, y)
     assert tests["stratified"] == pytest.approx(stratified) and 0 < stratified < 1
     assert tests["sign_flip"] == pytest.approx(sign_flip)
+
+
+def test_a_tag_the_scripts_log_but_no_run_has_yet_is_said_and_a_typo_refused(tmp_path, capsys):
+    """One iteration of MsPacman ends no game: `charts/episodic_return` is a tag the scripts log, not yet logged, so
+    the learning check's table of it is skipped with a line (exit 0, nothing written); a misspelt tag is refused."""
+    root = tmp_path / "runs"
+    writer = SummaryWriter(str(root / f"MsPacman-v5__{PPO}__1"))
+    writer.add_scalar("charts/SPS", 100.0, 4096)
+    writer.close()
+    out = tmp_path / "out"
+    result = results.main(results.Args(roots=(str(root),), out=str(out), tag="charts/episodic_return"))
+    assert result["table"] == {} and not out.exists()
+    assert f"no run under {root} has logged charts/episodic_return yet; no table written" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:
+        results.main(results.Args(roots=(str(root),), out=str(out), tag="charts/episodic_retrun"))
+    assert str(refused.value.code).startswith("error: --tag 'charts/episodic_retrun': no run under")
+    assert not out.exists()
