@@ -251,6 +251,43 @@ def per_game_tests(statistics, tag, last, p3o, ppo) -> tuple[str | None, dict]:
     return "\n".join(lines) + "\n", tests
 
 
+def ablation_tests(statistics, tag, last, arms, p3o, ppo) -> str | None:
+    """Each ablation arm against P3O and against PPO, per game with two runs or more of each side: per_game_tests's
+    difference, Welch's CI and p and the exact permutation p, one row per (game, arm, other), in one table; None
+    without arms."""
+    if not arms:
+        return None
+    rows, sizes = [], set()
+    per = per_game_scores(statistics, (p3o, ppo, *arms))
+    tested = {
+        (arm, other): per_game_tests(statistics, tag, last, arm, other)[1] for arm in arms for other in (p3o, ppo)
+    }
+    for env in sorted(per):
+        for (arm, other), tests in tested.items():
+            if env in tests:
+                d, lo, hi, welch_p, permutation_p = tests[env]
+                sizes.add((len(per[env][arm]), len(per[env][other])))
+                rows.append([env, arm, other, f"{len(per[env][arm])} vs {len(per[env][other])}", number(d)])
+                rows[-1] += [f"[{number(lo)}, {number(hi)}]", f"{welch_p:.3f}", f"{permutation_p:.3f}"]
+    if not rows:
+        return (
+            f"`{tag}`: no game has two runs or more of an ablation arm ({', '.join(arms)}) and of {p3o} or {ppo} yet.\n"
+        )
+    smallest = ", ".join(f"{2 / comb(m + k, m):.3g} for {m} runs against {k}" for m, k in sorted(sizes))
+    lines = [
+        f"`{tag}`" + (f" (last {last})" if last else "") + ": per game, each ablation arm against the full P3O"
+        f" ({p3o}) and against PPO ({ppo}): the arm's mean minus the other's; Welch's t test (unequal variances) with"
+        " its 95% confidence interval of the difference and two-sided p; the exact two-sided permutation test of the"
+        f" same difference over every split of the two arms' runs (its smallest possible p is {smallest}). A large"
+        " p says only that these runs cannot tell the two apart.",
+        "",
+        *markdown(
+            ["game", "arm", "against", "n", "difference", "Welch 95% CI", "Welch p", "exact permutation p"], rows
+        ),
+    ]
+    return "\n".join(lines) + "\n"
+
+
 def readme_block(frame, table, tests, tag, last, p3o, ppo, aggregate) -> str:
     """The README's results from the tables written: per game the mean ± s.e. (n) of each algorithm and the random
     policy, the two per-game tests, the thesis's table 5.1; then the across-game aggregates in one line."""

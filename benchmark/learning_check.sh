@@ -34,19 +34,15 @@ set -euo pipefail
 tables() {
     local out=$1 steps=$2 readme=()
     if [ "$mode" = ablation ]; then  # the four arms: the two ablations, and the committed P3O and PPO of their games
-        local arms=("$out/runs" "$out/../learning_check/runs") only=(--games $games) arm other
-        $PYTHON "${base}benchmark/results.py" "${arms[@]}" --out "$out" "${only[@]}"
-        $PYTHON "${base}benchmark/results.py" "${arms[@]}" --out "$out" "${only[@]}" --tag charts/episodic_return \
+        # the four arms' table and curves, and each ablation against P3O and against PPO: Welch and permutation p
+        local arms=("$out/runs" "$out/../learning_check/runs") four=(--games $games --ablations p3o_gae p3o_value_beta_one)
+        $PYTHON "${base}benchmark/results.py" "${arms[@]}" --out "$out" "${four[@]}"
+        $PYTHON "${base}benchmark/results.py" "${arms[@]}" --out "$out" "${four[@]}" --tag charts/episodic_return \
             --last 100 --table-name train_last100 --window-steps "$((steps / 5))" --no-figures
-        for arm in p3o_gae p3o_value_beta_one; do  # each ablation against P3O and against PPO: Welch and permutation p
-            for other in p3o_atari_envpool ppo_atari_envpool; do
-                $PYTHON "${base}benchmark/results.py" "${arms[@]}" --out "$out" "${only[@]}" --no-figures \
-                    --p3o-name "$arm" --ppo-name "$other" --table-name "${arm}_vs_${other}"
-            done
-        done
         $PYTHON "${base}benchmark/hours.py" "$out/runs" --out "$out"
-        echo "tables: $out/table.md (the four arms' 10-game evaluation), $out/p3o_*_vs_*_per_game_tests.md (the tests),"
-        echo "        $out/train_last100*.md; figures: $out/*.png (the four arms' training curves); hours: $out/hours.md"
+        echo "tables: $out/table.md (the four arms' 10-game evaluation), $out/table_ablations.md (the tests),"
+        echo "        $out/train_last100*.md (training); figures: $out/*.png (the four arms' training curves);"
+        echo "        hours: $out/hours.md"
         return
     fi
     # the thesis regime's tables in a repository's benchmark/results/learning_check/ also rewrite the results

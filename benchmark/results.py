@@ -24,7 +24,7 @@ import tyro
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from comparison import across_games, markdown, mean_se_text, per_game_tests, readme_block  # noqa: E402
+from comparison import ablation_tests, across_games, markdown, mean_se_text, per_game_tests, readme_block  # noqa: E402
 
 # --readme replaces what lies between these two lines of the file with the results table and aggregate line
 README_BEGIN = "<!-- begin: written by benchmark/results.py --readme from the committed runs; do not edit by hand -->"
@@ -74,6 +74,8 @@ class Args:
     """the algorithm (exp name) compared against --ppo-name across games"""
     ppo_name: str = "ppo_atari_envpool"
     """the baseline algorithm"""
+    ablations: tuple[str, ...] = ()
+    """exp names each tested per game against --p3o-name and --ppo-name (Welch, permutation): TABLE_NAME_ablations.md"""
     bootstrap_reps: int = 2000
     """stratified-bootstrap replications for the across-game confidence intervals"""
     seed: int = 0
@@ -472,8 +474,11 @@ def main(args: Args) -> dict:
     tests_text, tests = per_game_tests(statistics, args.tag, args.last, args.p3o_name, args.ppo_name)
     if tests_text:
         print(write(out, f"{name}_per_game_tests", tests_text))
+    ablations = ablation_tests(statistics, args.tag, args.last, args.ablations, args.p3o_name, args.ppo_name)
+    if ablations:  # with fewer than two runs a side in every game, the file says so
+        print(write(out, f"{name}_ablations", ablations))
     result = {"runs": frame.run.nunique(), "table": table, "windows": windows, "across_games": comparison}
-    result |= {"per_game_tests": tests_text, "figures": []}
+    result |= {"per_game_tests": tests_text, "ablations": ablations, "figures": []}
     if args.readme is not None:
         block = readme_block(frame, table, tests, label, args.last, args.p3o_name, args.ppo_name, aggregate)
         before, rest = open(args.readme).read().split(README_BEGIN)

@@ -738,3 +738,40 @@ def test_a_tag_the_scripts_log_but_no_run_has_yet_is_said_and_a_typo_refused(tmp
         results.main(results.Args(roots=(str(root),), out=str(out), tag="charts/episodic_retrun"))
     assert str(refused.value.code).startswith("error: --tag 'charts/episodic_retrun': no run under")
     assert not out.exists()
+
+
+def test_each_ablation_arm_is_tested_against_p3o_and_ppo_in_one_table(tmp_path):
+    from scipy import stats
+
+    arms = {"p3o_gae": [[6.0] * 10, [8.0] * 10, [10.0] * 10], "p3o_value_beta_one": [[25.0] * 10, [35.0] * 10]}
+    for algo, per_seed in [(P3O, EVAL["Breakout-v5", P3O]), (PPO, EVAL["Breakout-v5", PPO]), *arms.items()]:
+        for seed, returns in enumerate(per_seed, start=1):
+            write_run(tmp_path / "runs", "Breakout-v5", algo, seed, returns, step_every=50_000)
+    write_run(tmp_path / "runs", "Qbert-v5", "p3o_gae", 1, [1.0] * 10, step_every=50_000)  # one run: not tested
+    args = dict(roots=(str(tmp_path / "runs"),), out=str(tmp_path / "out"), figures=False, bootstrap_reps=10)
+    text = results.main(results.Args(**args, ablations=tuple(arms)))["ablations"]
+    assert open(tmp_path / "out" / "table_ablations.md").read() == text
+    assert "smallest possible p is 0.2 for 2 runs against 3, 0.1 for 3 runs against 3" in text
+    rows = re.findall(
+        r"\| (\S+) \| (\S+) \| (\S+) \| (\d) vs (\d) \| (\S+) \| \[(\S+), (\S+)\] \| (\S+) \| (\S+) \|", text
+    )
+    assert [row[:3] for row in rows] == [
+        ("Breakout-v5", arm, other) for arm in arms for other in (P3O, PPO)
+    ]  # Qbert's single p3o_gae run has nothing to be tested against
+    scores = {P3O: [10, 20, 30], PPO: [5, 7, 9], "p3o_gae": [6, 8, 10], "p3o_value_beta_one": [25, 35]}
+    for _, arm, other, n_arm, n_other, d, lo, hi, welch_p, permutation_p in rows:
+        a, b = scores[arm], scores[other]
+        welch = stats.ttest_ind(a, b, equal_var=False)
+        assert (int(n_arm), int(n_other)) == (len(a), len(b))
+        assert float(d) == pytest.approx(np.mean(a) - np.mean(b), abs=0.05)
+        assert [float(lo), float(hi)] == pytest.approx(list(welch.confidence_interval(0.95)), abs=0.05)
+        assert float(welch_p) == pytest.approx(welch.pvalue, abs=5e-4)
+        assert float(permutation_p) == pytest.approx(comparison.exact_permutation_p(a, b), abs=5e-4)
+    # p3o_gae (6, 8, 10) against PPO (5, 7, 9): +1; 7 of the 20 splits of the six runs into three and three give the
+    # arm's side a sum of 24 or more, so the two-sided p is twice 7/20
+    assert re.search(r"\| Breakout-v5 \| p3o_gae \| ppo_atari_envpool \| 3 vs 3 \| 1\.00 \| .* \| 0\.700 \|\n", text)
+    # without arms nothing is written; with arms but one run a side, the file says there is nothing to test yet
+    assert results.main(results.Args(**args | {"out": str(tmp_path / "none")}))["ablations"] is None
+    assert not (tmp_path / "none" / "table_ablations.md").exists()
+    few = results.main(results.Args(**args | {"games": ("Qbert-v5",)}, ablations=("p3o_gae",)))["ablations"]
+    assert few.startswith("`eval/episodic_return`: no game has two runs or more of an ablation arm (p3o_gae)")
