@@ -184,6 +184,9 @@ def test_the_ablation_mode_trains_p3o_with_each_piece_off_evaluated_beside_no_ra
         assert f"iteration 1/1 global_step={STEPS} " in (run / "train.log").read_text()
         assert_logged(run, f"exp_name|p3o_{change.replace('-', '_')}", "ewma_alpha|0.75", "num_envs|16", "seed|3")
         assert not (run / "checkpoint.pt").exists()
+    # the four arms' table, and the ablation tests' table, which says one run a side is nothing to test yet
+    assert "| game | p3o_gae | p3o_value_beta_one |\n|---|---|---|\n| MsPacman-v5 | " in (out / "table.md").read_text()
+    assert (out / "table_ablations.md").read_text().startswith("`eval/episodic_return`: no game has two runs or more")
     again = learning_check(tmp_path, out, MODE="ablation", GAMES="MsPacman-v5", SEEDS="3")
     assert again.returncode == 0 and "MsPacman-v5 seed 3: done" in again.stdout
 
