@@ -18,6 +18,7 @@ game index) into the run's folder once, after the last game; a run already evalu
 `--replay` plays it again and checks every game against its `eval.json`.
 """
 
+import contextlib
 import importlib
 import json
 import os
@@ -104,14 +105,17 @@ def play(agent, env_id, episodes, seed, greedy, device, video_dir=None) -> dict:
         import imageio_ffmpeg  # only here: nothing else needs it (the GPU bundle carries it without its ffmpeg)
 
         os.makedirs(video_dir, exist_ok=True)
-    writers = [imageio_ffmpeg.write_frames(path, (160, 210), fps=15, macro_block_size=1) for path in paths]
-    for writer in writers:
-        writer.send(None)  # start the encoder
-    obs_np, _ = envs.reset()
+    writers = []
     returns, lengths, playing = np.zeros(episodes), np.zeros(episodes, dtype=np.int64), np.ones(episodes, dtype=bool)
     try:
+        for path in paths:
+            writer = imageio_ffmpeg.write_frames(path, (160, 210), fps=15, macro_block_size=1, ffmpeg_log_level="error")
+            writers.append(writer)
+            writer.send(None)  # start the encoder
+        obs_np, _ = envs.reset()
         with torch.inference_mode():
             while playing.any():
+                stop_if_signalled()
                 logits = agent.actor(agent.hidden(torch.as_tensor(obs_np, device=device)))
                 action = logits.argmax(-1) if greedy else Categorical(logits=logits, validate_args=False).sample()
                 obs_np, _, terminations, truncations, info = envs.step(action.cpu().numpy())
@@ -121,6 +125,11 @@ def play(agent, env_id, episodes, seed, greedy, device, video_dir=None) -> dict:
                 returns += info["reward"] * playing
                 lengths += playing
                 playing &= ~np.logical_or(info["terminated"].astype(bool), truncations)
+    except BaseException:  # stopped or failed: the encoders are killed, not left to finish videos that are deleted
+        for writer in writers:
+            with contextlib.suppress(BaseException):
+                writer.throw(SystemExit)  # imageio-ffmpeg kills its ffmpeg on SystemExit
+        raise
     finally:
         envs.close()
         for writer in writers:
@@ -241,6 +250,7 @@ def main(args: Args) -> dict | None:
     videos = os.path.join(partial, "videos") if args.video else None
     try:
         report = play(agent, env_id, args.episodes, seed, args.greedy, device, videos)
+        stop_if_signalled()  # one that came as the encoders finished
         for game, (ret, length) in enumerate(zip(report["returns"], report["lengths"], strict=True)):
             say(f"game {game} (seed {report['seeds'][game]}): return {ret:.1f}, {length} steps")
         if args.replay:
@@ -257,15 +267,31 @@ def main(args: Args) -> dict | None:
             )
             if args.run_dir:
                 record_folder(args, report, saved, env_id, partial, say)
+    except Exception:  # an error after a stop signal is its doing: it reaches the helpers ffmpeg runs in our group
+        stop_if_signalled()
+        raise
     finally:
         shutil.rmtree(partial, ignore_errors=True)
     return report
 
 
-def stop_at_once(signum, frame):
-    """From the command line, SIGTERM and SIGINT stop an evaluation at once, writing nothing (the model is on disk)."""
-    load_script("ppo").say(f"stopped by signal {signum}: nothing was written (the model is on disk: run this again)")
-    sys.exit(128 + signum)
+STOPS: list[int] = []  # the stop signals received (SIGTERM, SIGINT), from the command line
+
+
+def note_stop(signum, frame):
+    """A stop signal is only noted here and acted on between two steps of the games: an exit raised in the handler
+    can land in Python's at-fork hooks as an encoder starts, which print it and go on (the games would play on)."""
+    STOPS.append(signum)
+
+
+def stop_if_signalled():
+    """After a stop signal an evaluation ends at its next step, writing nothing (the model is on disk); one that
+    comes once the games are played is too late to lose them: the evaluation is written."""
+    if STOPS:
+        load_script("ppo").say(
+            f"stopped by signal {STOPS[0]}: nothing was written (the model is on disk: run this again)"
+        )
+        sys.exit(128 + STOPS[0])
 
 
 def check_replay(report: dict, run_eval: str, say) -> dict:
@@ -318,6 +344,6 @@ def record_folder(args: Args, report: dict, saved: dict | None, env_id: str, par
 
 
 if __name__ == "__main__":
-    signal.signal(signal.SIGTERM, stop_at_once)
-    signal.signal(signal.SIGINT, stop_at_once)
+    signal.signal(signal.SIGTERM, note_stop)
+    signal.signal(signal.SIGINT, note_stop)
     main(tyro.cli(Args))

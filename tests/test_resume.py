@@ -776,3 +776,59 @@ def test_ctrl_c_in_a_filmed_evaluation_into_a_new_folder_leaves_nothing_and_no_n
     assert proc.returncode == 128 + signal.SIGINT, (lines, out, err)
     assert err == "" and "stopped by signal 2: nothing was written" in out, err
     assert os.listdir(tmp_path) == []
+
+
+def filmed_evaluation(trained, tmp_path):
+    from benchmark import evaluate
+
+    model = str(trained[1] / "checkpoint.pt")
+    return evaluate.Args(model_path=model, run_dir=str(tmp_path / "clip"), video=True, episodes=2, cuda=False)
+
+
+def test_a_stop_signal_is_noted_and_ends_the_games_at_their_next_step_with_the_encoders_killed(
+    trained, tmp_path, capfd, caplog, monkeypatch
+):
+    """The handler only notes a signal: an exit raised in it could land in Python's at-fork hooks as an encoder
+    starts, which print it and play on (the evaluation was written, exit 0). A stop that comes before the first
+    frame ends the games at their first step and kills the encoders: none is left to finish an empty video aloud."""
+    from benchmark import evaluate
+
+    monkeypatch.setattr(evaluate, "STOPS", [])
+    before = signal.signal(signal.SIGINT, evaluate.note_stop)
+    try:
+        os.kill(os.getpid(), signal.SIGINT)
+        noted = list(evaluate.STOPS)  # the handler has run, and raised nothing
+    finally:
+        signal.signal(signal.SIGINT, before)
+    assert noted == [signal.SIGINT]
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stopped:
+        evaluate.main(filmed_evaluation(trained, tmp_path))
+    out, err = capfd.readouterr()
+    assert stopped.value.code == 128 + signal.SIGINT and "stopped by signal 2: nothing was written" in out
+    assert err == "" and caplog.messages == [] and os.listdir(tmp_path) == []  # imageio-ffmpeg's warnings log
+
+
+def test_an_error_after_a_stop_signal_is_the_stop(trained, tmp_path, capfd, monkeypatch):
+    """Ctrl-C reaches the helpers ffmpeg's wrapper runs in our process group (its encoder probe, whose empty answer
+    it then fails to parse): the evaluation exits as stopped, in one line, not with the error's traceback."""
+    import imageio_ffmpeg
+
+    from benchmark import evaluate
+
+    def probe_killed_by_the_ctrl_c(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)
+        raise IndexError("list index out of range")
+
+    monkeypatch.setattr(evaluate, "STOPS", [])
+    monkeypatch.setattr(imageio_ffmpeg, "write_frames", probe_killed_by_the_ctrl_c)
+    monkeypatch.chdir(tmp_path)
+    before = signal.signal(signal.SIGINT, evaluate.note_stop)
+    try:
+        with pytest.raises(SystemExit) as stopped:
+            evaluate.main(filmed_evaluation(trained, tmp_path))
+    finally:
+        signal.signal(signal.SIGINT, before)
+    out, err = capfd.readouterr()
+    assert stopped.value.code == 128 + signal.SIGINT and "stopped by signal 2: nothing was written" in out
+    assert err == "" and os.listdir(tmp_path) == []
