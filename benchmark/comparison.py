@@ -251,13 +251,38 @@ def per_game_tests(statistics, tag, last, p3o, ppo) -> tuple[str | None, dict]:
     return "\n".join(lines) + "\n", tests
 
 
+# An ablation arm is told apart from P3O or PPO where the exact permutation p of their difference is below this; the
+# rule for the readings was fixed on 2026-12-07, with 10 of issue 65's 30 runs in and none of them tested 5 against 5
+READING_LEVEL = 0.05
+
+
+def ablation_reading(against_p3o: tuple, against_ppo: tuple) -> str:
+    """Whether switching a piece of P3O off takes P3O's lead away (told apart from P3O, not from PPO), keeps it
+    (told apart from PPO, not from P3O), or neither; from the arm's (difference, ..., permutation p) against each."""
+    (d_p3o, *_, p_p3o), (d_ppo, *_, p_ppo) = against_p3o, against_ppo
+    off_p3o, off_ppo = p_p3o < READING_LEVEL, p_ppo < READING_LEVEL
+    verdict = {
+        (True, False): "takes the lead away" if d_p3o < 0 else "neither",
+        (False, True): "keeps the lead" if d_ppo > 0 else "neither",
+        (False, False): "cannot tell",
+        (True, True): "above both" if min(d_p3o, d_ppo) > 0 else "below both" if max(d_p3o, d_ppo) < 0 else "between",
+    }[off_p3o, off_ppo]
+
+    def side(d, p, name, told):
+        return (
+            f"{'above' if d > 0 else 'below'} {name} (p {p:.3f})" if told else f"not told apart from {name} (p {p:.3f})"
+        )
+
+    return f"{verdict}: {side(d_p3o, p_p3o, 'P3O', off_p3o)}, {side(d_ppo, p_ppo, 'PPO', off_ppo)}"
+
+
 def ablation_tests(statistics, tag, last, arms, p3o, ppo) -> str | None:
     """Each ablation arm against P3O and against PPO, per game with two runs or more of each side: per_game_tests's
-    difference, Welch's CI and p and the exact permutation p, one row per (game, arm, other), in one table; None
-    without arms."""
+    difference, Welch's CI and p and the exact permutation p, one row per (game, arm, other), in one table; then
+    ablation_reading per (game, arm) tested against both; None without arms."""
     if not arms:
         return None
-    rows, sizes = [], set()
+    rows, readings, sizes = [], [], set()
     per = per_game_scores(statistics, (p3o, ppo, *arms))
     tested = {
         (arm, other): per_game_tests(statistics, tag, last, arm, other)[1] for arm in arms for other in (p3o, ppo)
@@ -269,6 +294,9 @@ def ablation_tests(statistics, tag, last, arms, p3o, ppo) -> str | None:
                 sizes.add((len(per[env][arm]), len(per[env][other])))
                 rows.append([env, arm, other, f"{len(per[env][arm])} vs {len(per[env][other])}", number(d)])
                 rows[-1] += [f"[{number(lo)}, {number(hi)}]", f"{welch_p:.3f}", f"{permutation_p:.3f}"]
+        for arm in arms:
+            if env in tested[arm, p3o] and env in tested[arm, ppo]:
+                readings.append([env, arm, ablation_reading(tested[arm, p3o][env], tested[arm, ppo][env])])
     if not rows:
         return (
             f"`{tag}`: no game has two runs or more of an ablation arm ({', '.join(arms)}) and of {p3o} or {ppo} yet.\n"
@@ -285,6 +313,17 @@ def ablation_tests(statistics, tag, last, arms, p3o, ppo) -> str | None:
             ["game", "arm", "against", "n", "difference", "Welch 95% CI", "Welch p", "exact permutation p"], rows
         ),
     ]
+    if readings:
+        lines += [
+            "",
+            f"Reading (a rule fixed before the runs were all in): an arm is told apart from P3O or PPO where the exact"
+            f" permutation p is below {READING_LEVEL}. Switching the piece off takes P3O's lead away where the arm is"
+            " below P3O and not told apart from PPO; keeps it where it is above PPO and not told apart from P3O;"
+            " cannot tell where it is told apart from neither (which says only that these runs cannot, not that"
+            " the arms are equal); else it is above both, below both or between the two.",
+            "",
+            *markdown(["game", "arm", "reading"], readings),
+        ]
     return "\n".join(lines) + "\n"
 
 

@@ -532,6 +532,31 @@ def test_the_readme_results_block_is_what_results_py_writes_from_the_committed_r
     )
 
 
+@pytest.mark.parametrize(
+    "against_p3o, against_ppo, reading",
+    [
+        ((-300.0, 0.008), (-20.0, 0.69), "takes the lead away: below P3O (p 0.008), not told apart from PPO (p 0.690)"),
+        ((-10.0, 0.55), (250.0, 0.016), "keeps the lead: not told apart from P3O (p 0.550), above PPO (p 0.016)"),
+        (
+            (-90.0, 0.095),
+            (60.0, 0.19),
+            "cannot tell: not told apart from P3O (p 0.095), not told apart from PPO (p 0.190)",
+        ),
+        ((600.0, 0.008), (880.0, 0.008), "above both: above P3O (p 0.008), above PPO (p 0.008)"),
+        ((-460.0, 0.008), (-190.0, 0.032), "below both: below P3O (p 0.008), below PPO (p 0.032)"),
+        ((-100.0, 0.016), (120.0, 0.024), "between: below P3O (p 0.016), above PPO (p 0.024)"),
+        ((200.0, 0.040), (300.0, 0.10), "neither: above P3O (p 0.040), not told apart from PPO (p 0.100)"),
+        ((-0.5, 0.049), (-0.2, 0.050), "takes the lead away: below P3O (p 0.049), not told apart from PPO (p 0.050)"),
+    ],
+)
+def test_an_ablation_reading_follows_the_fixed_rule(against_p3o, against_ppo, reading):
+    """Told apart means an exact permutation p below 0.05 (p 0.050 is not); the direction of the differences picks
+    the words."""
+    (d_p3o, p_p3o), (d_ppo, p_ppo) = against_p3o, against_ppo
+    as_tested = (d_p3o, 0.0, 0.0, 0.0, p_p3o), (d_ppo, 0.0, 0.0, 0.0, p_ppo)  # (difference, lo, hi, Welch p, perm p)
+    assert comparison.ablation_reading(*as_tested) == reading
+
+
 def test_one_folder_given_twice_or_under_two_roots_is_one_run(root, tmp_path):
     single = results.main(results.Args(roots=(root,), out=str(tmp_path / "a"), figures=False, bootstrap_reps=10))
     dotted = os.path.join(os.path.relpath(root), ".")  # the same folder by another path
@@ -770,6 +795,12 @@ def test_each_ablation_arm_is_tested_against_p3o_and_ppo_in_one_table(tmp_path):
     # p3o_gae (6, 8, 10) against PPO (5, 7, 9): +1; 7 of the 20 splits of the six runs into three and three give the
     # arm's side a sum of 24 or more, so the two-sided p is twice 7/20
     assert re.search(r"\| Breakout-v5 \| p3o_gae \| ppo_atari_envpool \| 3 vs 3 \| 1\.00 \| .* \| 0\.700 \|\n", text)
+    # each arm tested against both gets the reading; three runs a side or fewer (smallest p 0.1) tell nothing apart
+    readings = re.findall(r"\| Breakout-v5 \| (\S+) \| (.+) \|\n", text.split("| game | arm | reading |")[1])
+    assert readings == [
+        ("p3o_gae", "cannot tell: not told apart from P3O (p 0.200), not told apart from PPO (p 0.700)"),
+        ("p3o_value_beta_one", "cannot tell: not told apart from P3O (p 0.400), not told apart from PPO (p 0.200)"),
+    ]
     # without arms nothing is written; with arms but one run a side, the file says there is nothing to test yet
     assert results.main(results.Args(**args | {"out": str(tmp_path / "none")}))["ablations"] is None
     assert not (tmp_path / "none" / "table_ablations.md").exists()
