@@ -320,7 +320,8 @@ def ablation_tests(statistics, tag, last, arms, p3o, ppo) -> str | None:
             f" permutation p is below {READING_LEVEL}. Switching the piece off takes P3O's lead away where the arm is"
             " below P3O and not told apart from PPO; keeps it where it is above PPO and not told apart from P3O;"
             " cannot tell where it is told apart from neither (which says only that these runs cannot, not that"
-            " the arms are equal); else it is above both, below both or between the two.",
+            " the arms are equal); neither where it is told apart only from P3O and above it, or only from PPO and"
+            " below it; else it is above both, below both or between the two.",
             "",
             *markdown(["game", "arm", "reading"], readings),
         ]
